@@ -1,0 +1,181 @@
+//! Everything that answers "what does this ray hit?".
+//!
+//! Every core answers the same batch verb, [`Intersector::trace`], because DACRT exists only
+//! as a batch algorithm; single-ray cores loop inside it. Cores are chosen by [`AccelKind`]
+//! and made by [`build`]. They parallelise on the rayon pool they are called in, so the
+//! caller bounds the threads by installing a pool.
+
+pub mod brute;
+#[cfg(feature = "embree")]
+pub mod embree;
+pub mod triangle;
+
+use crate::geometry::{Hit, Ray, Triangle};
+
+/// The accelerators of the contract (§3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum AccelKind {
+    /// The one expected to be fastest for the job.
+    Auto,
+    /// Every ray against every triangle: the reference.
+    Brute,
+    /// Intel Embree 3 (cargo feature `embree`): the peer.
+    Embree,
+}
+
+impl AccelKind {
+    /// Every kind, in the order they are listed to users.
+    pub const ALL: [AccelKind; 3] = [AccelKind::Auto, AccelKind::Brute, AccelKind::Embree];
+
+    /// The contract's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            AccelKind::Auto => "auto",
+            AccelKind::Brute => "brute",
+            AccelKind::Embree => "embree",
+        }
+    }
+
+    /// Parses the contract's name.
+    pub fn parse(s: &str) -> Option<AccelKind> {
+        AccelKind::ALL.into_iter().find(|k| k.name() == s)
+    }
+
+    /// Whether this build of rayd has the accelerator.
+    pub fn available(self) -> bool {
+        match self {
+            AccelKind::Embree => cfg!(feature = "embree"),
+            _ => true,
+        }
+    }
+
+    /// What `auto` becomes for a job of `rays` rays over `triangles` triangles.
+    pub fn resolve(self, _rays: usize, _triangles: usize) -> AccelKind {
+        match self {
+            AccelKind::Auto => AccelKind::Brute,
+            k => k,
+        }
+    }
+}
+
+/// Which hit a query wants.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Query {
+    /// The smallest t; among equal t, the lowest triangle id.
+    #[default]
+    Closest,
+    /// Some hit in the interval.
+    Any,
+}
+
+impl Query {
+    /// The contract's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Query::Closest => "closest",
+            Query::Any => "any",
+        }
+    }
+}
+
+/// Which ray/triangle test the cores use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Precision {
+    /// Möller–Trumbore: fewer operations, may miss or double-hit along shared edges.
+    Fast,
+    /// Woop, Benthin & Wald 2013: no ray slips through a shared edge.
+    #[default]
+    Watertight,
+}
+
+impl Precision {
+    /// The contract's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::Fast => "fast",
+            Precision::Watertight => "watertight",
+        }
+    }
+}
+
+/// Build quality of the BVH accelerators (Embree: LOW, MEDIUM, HIGH).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum BuildQuality {
+    /// Quickest build.
+    Fast,
+    /// Binned SAH.
+    #[default]
+    Sah,
+    /// Spatial splits.
+    Sbvh,
+}
+
+impl BuildQuality {
+    /// The contract's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            BuildQuality::Fast => "fast",
+            BuildQuality::Sah => "sah",
+            BuildQuality::Sbvh => "sbvh",
+        }
+    }
+}
+
+/// How to build an accelerator.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct BuildOptions {
+    /// Build quality (BVH accelerators and Embree).
+    pub quality: BuildQuality,
+    /// Ray/triangle test.
+    pub precision: Precision,
+    /// Threads the accelerator may use; 0 means all cores. Cores that use rayon take the
+    /// pool they are called in; Embree needs the number when its device is made.
+    pub threads: usize,
+}
+
+/// Errors of building an accelerator.
+#[derive(Debug, thiserror::Error)]
+pub enum AccelError {
+    /// The accelerator is not compiled into this binary.
+    #[error("accelerator '{0}' is not available in this build (rebuild with --features {0})")]
+    Unavailable(&'static str),
+    /// The accelerator's library failed.
+    #[error("{accel}: {message}")]
+    Backend {
+        /// Which accelerator.
+        accel: &'static str,
+        /// What went wrong.
+        message: String,
+    },
+}
+
+/// A built accelerator: answers batches of rays.
+pub trait Intersector: Send + Sync {
+    /// The contract's name of this accelerator.
+    fn name(&self) -> &'static str;
+
+    /// Traces `rays` and writes one hit per ray, in order, into `hits`
+    /// (`hits.len() == rays.len()`). Rays must be valid (see [`Ray::check`]); empty
+    /// intervals miss.
+    fn trace(&self, rays: &[Ray], query: Query, hits: &mut [Hit]);
+
+    /// Bytes this accelerator holds beyond the scene's positions.
+    fn bytes(&self) -> usize;
+}
+
+/// Builds the accelerator `kind` over `triangles` (`auto` must be resolved first).
+pub fn build(
+    kind: AccelKind,
+    triangles: &[Triangle],
+    options: &BuildOptions,
+) -> Result<Box<dyn Intersector>, AccelError> {
+    match kind {
+        AccelKind::Auto | AccelKind::Brute => {
+            Ok(Box::new(brute::Brute::new(triangles, options.precision)))
+        }
+        #[cfg(feature = "embree")]
+        AccelKind::Embree => Ok(Box::new(embree::Embree::new(triangles, options)?)),
+        #[cfg(not(feature = "embree"))]
+        AccelKind::Embree => Err(AccelError::Unavailable("embree")),
+    }
+}

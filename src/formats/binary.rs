@@ -1,0 +1,489 @@
+//! The contract's binary files (§2): RAY1 rays, HIT1 hits and TRI1 triangles.
+//!
+//! Every file is a 16-byte header `magic: u32, version: u16, format: u16, count: u64`
+//! followed by exactly `count` fixed-size records, all little-endian. Readers check the
+//! header and the exact body length (without overflow, before allocating) and say which
+//! rule failed; `proto/binary-formats.md` is the long form.
+
+use crate::geometry::{Hit, Ray, Triangle};
+
+/// `RAY1` as a little-endian u32.
+pub const RAY1_MAGIC: u32 = u32::from_le_bytes(*b"RAY1");
+/// `HIT1` as a little-endian u32.
+pub const HIT1_MAGIC: u32 = u32::from_le_bytes(*b"HIT1");
+/// `TRI1` as a little-endian u32.
+pub const TRI1_MAGIC: u32 = u32::from_le_bytes(*b"TRI1");
+/// The only version there is.
+pub const VERSION: u16 = 1;
+/// Size of the common header.
+pub const HEADER_BYTES: usize = 16;
+
+const _: () = assert!(RAY1_MAGIC == 0x3159_4152);
+const _: () = assert!(HIT1_MAGIC == 0x3154_4948);
+const _: () = assert!(TRI1_MAGIC == 0x3149_5254);
+
+/// Which fields a HIT1 record carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum HitFormat {
+    /// `t: f32, prim: u32, u: f32, v: f32` (16 bytes).
+    #[default]
+    TPrimUv,
+    /// `t: f32, prim: u32` (8 bytes).
+    TPrim,
+    /// `t: f32` (4 bytes).
+    T,
+    /// `u8`: 1 if the ray hits anything in its interval.
+    Occluded,
+}
+
+impl HitFormat {
+    /// Every format, by code.
+    pub const ALL: [HitFormat; 4] = [
+        HitFormat::TPrimUv,
+        HitFormat::TPrim,
+        HitFormat::T,
+        HitFormat::Occluded,
+    ];
+
+    /// The header's `format` code.
+    pub fn code(self) -> u16 {
+        match self {
+            HitFormat::TPrimUv => 0,
+            HitFormat::TPrim => 1,
+            HitFormat::T => 2,
+            HitFormat::Occluded => 3,
+        }
+    }
+
+    /// The contract's name.
+    pub fn name(self) -> &'static str {
+        match self {
+            HitFormat::TPrimUv => "t_prim_uv",
+            HitFormat::TPrim => "t_prim",
+            HitFormat::T => "t",
+            HitFormat::Occluded => "occluded",
+        }
+    }
+
+    /// Parses the contract's name.
+    pub fn parse(s: &str) -> Option<HitFormat> {
+        HitFormat::ALL.into_iter().find(|f| f.name() == s)
+    }
+
+    /// Bytes per record.
+    pub fn record_bytes(self) -> usize {
+        match self {
+            HitFormat::TPrimUv => 16,
+            HitFormat::TPrim => 8,
+            HitFormat::T => 4,
+            HitFormat::Occluded => 1,
+        }
+    }
+
+    fn from_code(code: u16) -> Option<HitFormat> {
+        HitFormat::ALL.into_iter().find(|f| f.code() == code)
+    }
+}
+
+/// What is wrong with a binary body.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum BinaryError {
+    /// Fewer than 16 bytes.
+    #[error("{kind}: body is {len} bytes, shorter than the 16-byte header")]
+    ShortHeader {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// Body length.
+        len: usize,
+    },
+    /// The magic at byte 0 is not the expected one.
+    #[error(
+        "{kind}: wrong magic {found:#010x} at byte 0 (expected {expected:#010x}, ASCII \"{kind}\")"
+    )]
+    WrongMagic {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// Magic found.
+        found: u32,
+        /// Magic expected.
+        expected: u32,
+    },
+    /// The version at byte 4 is not 1.
+    #[error("{kind}: unknown version {found} at byte 4 (expected 1)")]
+    UnknownVersion {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// Version found.
+        found: u16,
+    },
+    /// The format at byte 6 is not one this kind has.
+    #[error("{kind}: unknown format {found} at byte 6 ({allowed})")]
+    UnknownFormat {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// Format found.
+        found: u16,
+        /// What is allowed.
+        allowed: &'static str,
+    },
+    /// `16 + count × record` overflows.
+    #[error("{kind}: count {count} at byte 8 is too large ({record} bytes a record overflows)")]
+    CountOverflow {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// The count in the header.
+        count: u64,
+        /// Record size.
+        record: usize,
+    },
+    /// The body is not exactly `16 + count × record` bytes.
+    #[error("{kind}: body is {len} bytes but the header's count {count} needs exactly {expected} (16 + {count} × {record})")]
+    WrongLength {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// Body length.
+        len: usize,
+        /// The count in the header.
+        count: u64,
+        /// Record size.
+        record: usize,
+        /// Expected body length.
+        expected: u128,
+    },
+    /// A TRI1 coordinate is NaN or infinite.
+    #[error("TRI1: triangle {index} has a NaN or infinite coordinate (byte offset {offset})")]
+    NonFiniteTriangle {
+        /// Triangle index.
+        index: usize,
+        /// Byte offset of the bad coordinate.
+        offset: usize,
+    },
+}
+
+struct Header {
+    format: u16,
+    count: usize,
+}
+
+fn read_u32(b: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+
+fn read_f32(b: &[u8], at: usize) -> f32 {
+    f32::from_le_bytes(b[at..at + 4].try_into().expect("4 bytes"))
+}
+
+/// Checks the header and the exact body length; `record_for` gives the record size of a
+/// format code, or `None` for an unknown one.
+fn parse_header(
+    bytes: &[u8],
+    kind: &'static str,
+    magic: u32,
+    allowed: &'static str,
+    record_for: impl Fn(u16) -> Option<usize>,
+) -> Result<Header, BinaryError> {
+    if bytes.len() < HEADER_BYTES {
+        return Err(BinaryError::ShortHeader {
+            kind,
+            len: bytes.len(),
+        });
+    }
+    let found = read_u32(bytes, 0);
+    if found != magic {
+        return Err(BinaryError::WrongMagic {
+            kind,
+            found,
+            expected: magic,
+        });
+    }
+    let version = u16::from_le_bytes([bytes[4], bytes[5]]);
+    if version != VERSION {
+        return Err(BinaryError::UnknownVersion {
+            kind,
+            found: version,
+        });
+    }
+    let format = u16::from_le_bytes([bytes[6], bytes[7]]);
+    let record = record_for(format).ok_or(BinaryError::UnknownFormat {
+        kind,
+        found: format,
+        allowed,
+    })?;
+    let count = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
+    let expected = (count as u128) * (record as u128) + HEADER_BYTES as u128;
+    if expected > usize::MAX as u128 || expected > isize::MAX as u128 {
+        return Err(BinaryError::CountOverflow {
+            kind,
+            count,
+            record,
+        });
+    }
+    if expected != bytes.len() as u128 {
+        return Err(BinaryError::WrongLength {
+            kind,
+            len: bytes.len(),
+            count,
+            record,
+            expected,
+        });
+    }
+    Ok(Header {
+        format,
+        count: count as usize,
+    })
+}
+
+fn header(magic: u32, format: u16, count: usize, record: usize) -> Vec<u8> {
+    let mut out = Vec::with_capacity(HEADER_BYTES + count * record);
+    out.extend_from_slice(&magic.to_le_bytes());
+    out.extend_from_slice(&VERSION.to_le_bytes());
+    out.extend_from_slice(&format.to_le_bytes());
+    out.extend_from_slice(&(count as u64).to_le_bytes());
+    out
+}
+
+/// Reads a RAY1 body. Validity of the rays themselves is checked separately
+/// ([`Ray::validate_batch`]), since `invalid=miss` answers bad rays instead of refusing them.
+pub fn read_rays(bytes: &[u8]) -> Result<Vec<Ray>, BinaryError> {
+    let h = parse_header(bytes, "RAY1", RAY1_MAGIC, "RAY1 has only format 0", |f| {
+        (f == 0).then_some(32)
+    })?;
+    let body = &bytes[HEADER_BYTES..];
+    let mut rays = Vec::with_capacity(h.count);
+    for rec in body.chunks_exact(32) {
+        let f = |i: usize| read_f32(rec, 4 * i);
+        rays.push(Ray {
+            org: [f(0), f(1), f(2)],
+            tmin: f(3),
+            dir: [f(4), f(5), f(6)],
+            tmax: f(7),
+        });
+    }
+    Ok(rays)
+}
+
+/// Writes rays as a RAY1 body.
+pub fn write_rays(rays: &[Ray]) -> Vec<u8> {
+    let mut out = header(RAY1_MAGIC, 0, rays.len(), 32);
+    for r in rays {
+        for x in [
+            r.org[0], r.org[1], r.org[2], r.tmin, r.dir[0], r.dir[1], r.dir[2], r.tmax,
+        ] {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Reads a TRI1 body; a NaN or infinite coordinate is refused with its triangle and offset.
+pub fn read_tri(bytes: &[u8]) -> Result<Vec<Triangle>, BinaryError> {
+    let h = parse_header(bytes, "TRI1", TRI1_MAGIC, "TRI1 has only format 0", |f| {
+        (f == 0).then_some(36)
+    })?;
+    let body = &bytes[HEADER_BYTES..];
+    let mut tris = Vec::with_capacity(h.count);
+    for (index, rec) in body.chunks_exact(36).enumerate() {
+        let mut t = Triangle::default();
+        for (k, x) in t.v.iter_mut().flatten().enumerate() {
+            *x = read_f32(rec, 4 * k);
+            if !x.is_finite() {
+                return Err(BinaryError::NonFiniteTriangle {
+                    index,
+                    offset: HEADER_BYTES + 36 * index + 4 * k,
+                });
+            }
+        }
+        tris.push(t);
+    }
+    Ok(tris)
+}
+
+/// Writes triangles as a TRI1 body.
+pub fn write_tri(tris: &[Triangle]) -> Vec<u8> {
+    let mut out = header(TRI1_MAGIC, 0, tris.len(), 36);
+    for t in tris {
+        for x in t.v.iter().flatten() {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Writes hits as a HIT1 body with only the fields of `format`.
+pub fn write_hits(hits: &[Hit], format: HitFormat) -> Vec<u8> {
+    let mut out = header(HIT1_MAGIC, format.code(), hits.len(), format.record_bytes());
+    for h in hits {
+        match format {
+            HitFormat::TPrimUv => {
+                out.extend_from_slice(&h.t.to_le_bytes());
+                out.extend_from_slice(&h.prim.to_le_bytes());
+                out.extend_from_slice(&h.u.to_le_bytes());
+                out.extend_from_slice(&h.v.to_le_bytes());
+            }
+            HitFormat::TPrim => {
+                out.extend_from_slice(&h.t.to_le_bytes());
+                out.extend_from_slice(&h.prim.to_le_bytes());
+            }
+            HitFormat::T => out.extend_from_slice(&h.t.to_le_bytes()),
+            HitFormat::Occluded => out.push(u8::from(h.is_hit())),
+        }
+    }
+    out
+}
+
+/// Reads a HIT1 body. Fields the format does not carry come back as the miss's values
+/// (`prim` is set to 0 for an occluded hit, `u = v = 0`), so compare only what was written.
+pub fn read_hits(bytes: &[u8]) -> Result<(HitFormat, Vec<Hit>), BinaryError> {
+    let h = parse_header(bytes, "HIT1", HIT1_MAGIC, "HIT1 formats are 0 to 3", |f| {
+        HitFormat::from_code(f).map(HitFormat::record_bytes)
+    })?;
+    let format = HitFormat::from_code(h.format).expect("checked by parse_header");
+    let body = &bytes[HEADER_BYTES..];
+    let mut hits = Vec::with_capacity(h.count);
+    for rec in body.chunks_exact(format.record_bytes()) {
+        let mut hit = Hit::MISS;
+        match format {
+            HitFormat::TPrimUv => {
+                hit.t = read_f32(rec, 0);
+                hit.prim = read_u32(rec, 4);
+                hit.u = read_f32(rec, 8);
+                hit.v = read_f32(rec, 12);
+            }
+            HitFormat::TPrim => {
+                hit.t = read_f32(rec, 0);
+                hit.prim = read_u32(rec, 4);
+            }
+            HitFormat::T => hit.t = read_f32(rec, 0),
+            HitFormat::Occluded => {
+                if rec[0] != 0 {
+                    hit.t = 0.0;
+                    hit.prim = 0;
+                }
+            }
+        }
+        hits.push(hit);
+    }
+    Ok((format, hits))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rays() -> Vec<Ray> {
+        (0..5)
+            .map(|i| Ray {
+                org: [i as f32, 1.0, 2.0],
+                tmin: 0.0,
+                dir: [0.0, 0.0, -1.0],
+                tmax: if i % 2 == 0 { f32::INFINITY } else { 10.0 },
+            })
+            .collect()
+    }
+
+    #[test]
+    fn rays_round_trip() {
+        let r = rays();
+        let bytes = write_rays(&r);
+        assert_eq!(bytes.len(), 16 + 5 * 32);
+        assert_eq!(&bytes[0..4], b"RAY1");
+        assert_eq!(read_rays(&bytes).unwrap(), r);
+    }
+
+    #[test]
+    fn triangles_round_trip_and_refuse_nan() {
+        let t = vec![
+            Triangle {
+                v: [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0]],
+            };
+            3
+        ];
+        let mut bytes = write_tri(&t);
+        assert_eq!(read_tri(&bytes).unwrap(), t);
+        let off = 16 + 36 + 4 * 4;
+        bytes[off..off + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        assert_eq!(
+            read_tri(&bytes),
+            Err(BinaryError::NonFiniteTriangle {
+                index: 1,
+                offset: off
+            })
+        );
+    }
+
+    #[test]
+    fn hits_round_trip_in_every_format() {
+        let hits = [
+            Hit {
+                t: 1.5,
+                prim: 7,
+                u: 0.25,
+                v: 0.5,
+            },
+            Hit::MISS,
+        ];
+        for f in HitFormat::ALL {
+            let bytes = write_hits(&hits, f);
+            assert_eq!(bytes.len(), 16 + 2 * f.record_bytes());
+            let (g, back) = read_hits(&bytes).unwrap();
+            assert_eq!(g, f);
+            assert_eq!(back[1], Hit::MISS);
+            match f {
+                HitFormat::TPrimUv => assert_eq!(back[0], hits[0]),
+                HitFormat::TPrim => assert_eq!((back[0].t, back[0].prim), (1.5, 7)),
+                HitFormat::T => assert_eq!(back[0].t, 1.5),
+                HitFormat::Occluded => assert!(back[0].is_hit()),
+            }
+        }
+    }
+
+    #[test]
+    fn header_errors_say_which_rule() {
+        let good = write_rays(&rays());
+        assert!(matches!(
+            read_rays(&good[..10]),
+            Err(BinaryError::ShortHeader { len: 10, .. })
+        ));
+        let mut b = good.clone();
+        b[0] = b'X';
+        assert!(matches!(read_rays(&b), Err(BinaryError::WrongMagic { .. })));
+        assert!(matches!(
+            read_rays(&write_tri(&[])),
+            Err(BinaryError::WrongMagic { .. })
+        ));
+        let mut b = good.clone();
+        b[4] = 2;
+        assert!(matches!(
+            read_rays(&b),
+            Err(BinaryError::UnknownVersion { found: 2, .. })
+        ));
+        let mut b = good.clone();
+        b[6] = 1;
+        assert!(matches!(
+            read_rays(&b),
+            Err(BinaryError::UnknownFormat { found: 1, .. })
+        ));
+        let mut b = good.clone();
+        b.push(0);
+        assert!(matches!(
+            read_rays(&b),
+            Err(BinaryError::WrongLength { .. })
+        ));
+        assert!(matches!(
+            read_rays(&good[..good.len() - 1]),
+            Err(BinaryError::WrongLength { .. })
+        ));
+        let mut b = good.clone();
+        b[8..16].copy_from_slice(&u64::MAX.to_le_bytes());
+        assert!(matches!(
+            read_rays(&b),
+            Err(BinaryError::CountOverflow { .. })
+        ));
+        let mut h = write_hits(&[Hit::MISS], HitFormat::T);
+        h[6] = 4;
+        assert!(matches!(
+            read_hits(&h),
+            Err(BinaryError::UnknownFormat { found: 4, .. })
+        ));
+    }
+}

@@ -1,0 +1,71 @@
+//! File formats: glTF 2.0 and TRI1 scenes in; RAY1 rays in; HIT1 hits out.
+//!
+//! The only layer that knows about `gltf`. Everything it returns is validated: a malformed
+//! file is an error that says what and where, never a panic.
+
+pub mod binary;
+pub mod gltf;
+
+use std::path::Path;
+
+use crate::scene::Scene;
+
+pub use binary::{BinaryError, HitFormat};
+pub use gltf::GltfError;
+
+/// Errors of reading or writing files.
+#[derive(Debug, thiserror::Error)]
+pub enum FormatError {
+    /// The file could not be read or written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+    /// A RAY1, HIT1 or TRI1 body is malformed.
+    #[error(transparent)]
+    Binary(#[from] BinaryError),
+    /// A glTF file is malformed or uses something rayd refuses.
+    #[error(transparent)]
+    Gltf(#[from] GltfError),
+    /// The file's kind is not known from its name.
+    #[error("{0}: unknown scene file type (expected .glb, .gltf or .tri)")]
+    UnknownSceneType(String),
+}
+
+/// How to load a scene.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LoadOptions {
+    /// Evaluate animations at this time (seconds); `None` is the file's static pose.
+    pub time: Option<f64>,
+}
+
+/// Reads a whole file, naming it in the error.
+pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
+    std::fs::read(path).map_err(|source| FormatError::Io {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
+/// Loads a `.glb`, `.gltf` (embedded or side-by-side buffers) or `.tri` scene.
+pub fn load_scene(path: &Path, options: &LoadOptions) -> Result<Scene, FormatError> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(|e| e.to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "tri" => {
+            let bytes = read_file(path)?;
+            Ok(Scene::from_triangles(binary::read_tri(&bytes)?))
+        }
+        "glb" | "gltf" => {
+            let bytes = read_file(path)?;
+            Ok(gltf::load(&bytes, path.parent(), options)?)
+        }
+        _ => Err(FormatError::UnknownSceneType(path.display().to_string())),
+    }
+}

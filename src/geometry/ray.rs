@@ -1,0 +1,195 @@
+//! The ray record (RAY1's 32 bytes) and the contract's validity rules.
+
+/// One ray, laid out exactly as a RAY1 record (OptiX Prime's ORIGIN_TMIN_DIRECTION_TMAX).
+///
+/// The hit interval is the closed `[tmin, tmax]` in units of `dir`'s length; `dir` need
+/// not be normalised. `tmin > tmax` is an empty interval and never hits.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Ray {
+    /// Origin.
+    pub org: [f32; 3],
+    /// Start of the hit interval (>= 0 for a valid ray).
+    pub tmin: f32,
+    /// Direction; not necessarily unit length, never zero for a valid ray.
+    pub dir: [f32; 3],
+    /// End of the hit interval; `+inf` allowed.
+    pub tmax: f32,
+}
+
+const _: () = assert!(std::mem::size_of::<Ray>() == 32);
+
+/// Why a ray is invalid under the contract (§2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RayError {
+    /// A NaN or infinite origin component.
+    NonFiniteOrigin,
+    /// A NaN or infinite direction component.
+    NonFiniteDirection,
+    /// All three direction components are ±0.
+    ZeroDirection,
+    /// `tmin` is negative or NaN.
+    BadTmin,
+    /// `tmax` is NaN.
+    NanTmax,
+}
+
+impl std::fmt::Display for RayError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            RayError::NonFiniteOrigin => "origin has a NaN or infinite component",
+            RayError::NonFiniteDirection => "direction has a NaN or infinite component",
+            RayError::ZeroDirection => "direction is zero",
+            RayError::BadTmin => "tmin is negative or NaN",
+            RayError::NanTmax => "tmax is NaN",
+        })
+    }
+}
+
+/// Summary of the invalid rays in a batch: enough for the contract's error message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InvalidRays {
+    /// Index of the first invalid ray.
+    pub first_index: usize,
+    /// Why that ray is invalid.
+    pub first_reason: RayError,
+    /// How many rays of the batch are invalid.
+    pub count: usize,
+}
+
+impl std::fmt::Display for InvalidRays {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} invalid ray(s); the first is ray {}: {}",
+            self.count, self.first_index, self.first_reason
+        )
+    }
+}
+
+impl Ray {
+    /// A ray whose interval is empty: every accelerator answers it with a miss. Used in place
+    /// of invalid rays under `invalid=miss`.
+    pub const EMPTY: Ray = Ray {
+        org: [0.0; 3],
+        tmin: 1.0,
+        dir: [1.0, 0.0, 0.0],
+        tmax: 0.0,
+    };
+
+    /// Checks this ray against the contract's validity rules.
+    pub fn check(&self) -> Result<(), RayError> {
+        if !self.org.iter().all(|c| c.is_finite()) {
+            return Err(RayError::NonFiniteOrigin);
+        }
+        if !self.dir.iter().all(|c| c.is_finite()) {
+            return Err(RayError::NonFiniteDirection);
+        }
+        if self.dir.iter().all(|&c| c == 0.0) {
+            return Err(RayError::ZeroDirection);
+        }
+        if self.tmin.is_nan() || self.tmin < 0.0 {
+            return Err(RayError::BadTmin);
+        }
+        if self.tmax.is_nan() {
+            return Err(RayError::NanTmax);
+        }
+        Ok(())
+    }
+
+    /// Validates a batch. With `replace_invalid` every invalid ray is replaced by
+    /// [`Ray::EMPTY`] (so it is answered as a miss) and the summary is still returned;
+    /// otherwise the rays are left untouched.
+    pub fn validate_batch(rays: &mut [Ray], replace_invalid: bool) -> Option<InvalidRays> {
+        let mut summary: Option<InvalidRays> = None;
+        for (i, ray) in rays.iter_mut().enumerate() {
+            if let Err(reason) = ray.check() {
+                match &mut summary {
+                    Some(s) => s.count += 1,
+                    None => {
+                        summary = Some(InvalidRays {
+                            first_index: i,
+                            first_reason: reason,
+                            count: 1,
+                        })
+                    }
+                }
+                if replace_invalid {
+                    *ray = Ray::EMPTY;
+                }
+            }
+        }
+        summary
+    }
+
+    /// The point at parameter `t`.
+    #[inline]
+    pub fn at(&self, t: f32) -> [f32; 3] {
+        [
+            self.org[0] + t * self.dir[0],
+            self.org[1] + t * self.dir[1],
+            self.org[2] + t * self.dir[2],
+        ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ray() -> Ray {
+        Ray {
+            org: [0.0; 3],
+            tmin: 0.0,
+            dir: [0.0, 0.0, 1.0],
+            tmax: f32::INFINITY,
+        }
+    }
+
+    #[test]
+    fn each_rule_has_its_own_reason() {
+        assert_eq!(ray().check(), Ok(()));
+        let mut r = ray();
+        r.org[1] = f32::NAN;
+        assert_eq!(r.check(), Err(RayError::NonFiniteOrigin));
+        let mut r = ray();
+        r.dir[2] = f32::INFINITY;
+        assert_eq!(r.check(), Err(RayError::NonFiniteDirection));
+        let mut r = ray();
+        r.dir = [0.0, -0.0, 0.0];
+        assert_eq!(r.check(), Err(RayError::ZeroDirection));
+        let mut r = ray();
+        r.tmin = -1e-30;
+        assert_eq!(r.check(), Err(RayError::BadTmin));
+        let mut r = ray();
+        r.tmin = f32::NAN;
+        assert_eq!(r.check(), Err(RayError::BadTmin));
+        let mut r = ray();
+        r.tmax = f32::NAN;
+        assert_eq!(r.check(), Err(RayError::NanTmax));
+        // Allowed edge cases: empty intervals and infinite tmin.
+        let mut r = ray();
+        r.tmin = f32::INFINITY;
+        r.tmax = 1.0;
+        assert_eq!(r.check(), Ok(()));
+        r.tmax = -5.0;
+        assert_eq!(r.check(), Ok(()));
+    }
+
+    #[test]
+    fn batch_reports_first_index_and_count() {
+        let mut rays = vec![ray(); 10];
+        rays[3].tmax = f32::NAN;
+        rays[7].dir = [0.0; 3];
+        let s = Ray::validate_batch(&mut rays, false).unwrap();
+        assert_eq!(
+            (s.first_index, s.count, s.first_reason),
+            (3, 2, RayError::NanTmax)
+        );
+        assert!(rays[3].tmax.is_nan());
+        Ray::validate_batch(&mut rays, true).unwrap();
+        assert_eq!(rays[3], Ray::EMPTY);
+        assert_eq!(rays[7], Ray::EMPTY);
+        assert!(Ray::validate_batch(&mut rays, false).is_none());
+    }
+}

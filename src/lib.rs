@@ -1,0 +1,19 @@
+//! rayd: a ray-tracing service that traces triangle scenes on the CPU.
+//!
+//! Data flows one way: `formats` turns files into a plain [`scene::Scene`]; `accel` builds
+//! the cores that answer "what does this ray hit?" from the scene's triangles; `render` and
+//! `bench` drive those cores; `cli` (and later the service) is the thin edge. `geometry` and
+//! `simd` are leaves that everything may use.
+//!
+//! `unsafe` is denied everywhere except the SIMD layer and the FFI of the Embree peer.
+#![deny(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod accel;
+pub mod bench;
+pub mod cli;
+pub mod formats;
+pub mod geometry;
+pub mod render;
+pub mod scene;
+pub mod simd;

@@ -1,0 +1,28 @@
+//! The portable SIMD layer (placeholder until the layer lands).
+
+/// A SIMD backend.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    /// AVX2 + FMA, 8 lanes native.
+    Avx2,
+    /// SSE4.1, 4 lanes native.
+    Sse,
+    /// Scalar emulation: works everywhere.
+    Scalar,
+}
+
+impl Backend {
+    /// The name `rayd info` reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Avx2 => "avx2",
+            Backend::Sse => "sse",
+            Backend::Scalar => "scalar",
+        }
+    }
+}
+
+/// The backend in use.
+pub fn selected() -> Backend {
+    Backend::Scalar
+}
