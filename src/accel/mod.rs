@@ -157,7 +157,20 @@ pub trait Intersector: Send + Sync {
     /// Traces `rays` and writes one hit per ray, in order, into `hits`
     /// (`hits.len() == rays.len()`). Rays must be valid (see [`Ray::check`]); empty
     /// intervals miss.
+    ///
+    /// With [`Query::Any`] the record describes whichever hit was found first.
     fn trace(&self, rays: &[Ray], query: Query, hits: &mut [Hit]);
+
+    /// Writes 1 for each ray that hits anything in its interval, else 0: the `any` query
+    /// when nobody asked for hit fields (HIT1's `occluded` format), so cores that can stop
+    /// without computing t, id or barycentrics (Embree's `rtcOccluded1`) do so.
+    fn occluded(&self, rays: &[Ray], out: &mut [u8]) {
+        let mut hits = vec![Hit::MISS; rays.len()];
+        self.trace(rays, Query::Any, &mut hits);
+        for (o, h) in out.iter_mut().zip(&hits) {
+            *o = u8::from(h.is_hit());
+        }
+    }
 
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
