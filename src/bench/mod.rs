@@ -1,1 +1,6 @@
 //! Benchmarks (placeholder).
+
+/// Errors of a benchmark.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct BenchError(String);

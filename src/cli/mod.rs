@@ -1,7 +1,208 @@
-//! The command line (placeholder).
+//! The command line (contract §4): `info`, `trace`, `render` and `bench`.
+//!
+//! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
+//! stderr and exits non-zero. Parsing happens here; the work happens in the library.
+
+mod bench;
+mod info;
+mod render;
+mod trace;
+
+use std::path::PathBuf;
 use std::process::ExitCode;
 
-/// Runs the command line.
-pub fn main() -> ExitCode {
-    ExitCode::SUCCESS
+use clap::{Parser, Subcommand};
+
+use crate::accel::{AccelKind, BuildQuality, Precision, Query};
+use crate::formats::HitFormat;
+use crate::render::Integrator;
+
+/// Errors of the command line: every layer's error, converted at this edge.
+#[derive(Debug, thiserror::Error)]
+pub enum CliError {
+    /// A scene, ray or hit file problem.
+    #[error(transparent)]
+    Format(#[from] crate::formats::FormatError),
+    /// A binary body problem.
+    #[error(transparent)]
+    Binary(#[from] crate::formats::BinaryError),
+    /// An accelerator could not be built.
+    #[error(transparent)]
+    Accel(#[from] crate::accel::AccelError),
+    /// The ray batch has invalid rays and `--invalid error` is in force.
+    #[error(
+        "{path}: {detail}; no output was written (use --invalid miss to answer them as misses)"
+    )]
+    InvalidRays {
+        /// The ray file.
+        path: String,
+        /// Which rays.
+        detail: crate::geometry::InvalidRays,
+    },
+    /// A camera description is unusable.
+    #[error(transparent)]
+    Camera(#[from] crate::render::camera::CameraError),
+    /// An image could not be encoded.
+    #[error(transparent)]
+    Image(#[from] crate::render::image::ImageError),
+    /// The SIMD backend request cannot be met.
+    #[error(transparent)]
+    Simd(#[from] crate::simd::SimdError),
+    /// A benchmark failed.
+    #[error(transparent)]
+    Bench(#[from] crate::bench::BenchError),
+    /// An option's value is unusable in a way the parser cannot see.
+    #[error("{0}")]
+    Usage(String),
+    /// A thread pool could not be made.
+    #[error("cannot start the thread pool: {0}")]
+    Pool(#[from] rayon::ThreadPoolBuildError),
 }
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "rayd",
+    version,
+    about = "Ray-traces triangle scenes on the CPU."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Describe a scene: triangles, bounds, meshes, animations, cameras, memory, SIMD backend.
+    Info(info::InfoArgs),
+    /// Trace a RAY1 file against a scene and write HIT1.
+    Trace(trace::TraceArgs),
+    /// Render a scene to PNG or OpenEXR.
+    Render(render::RenderArgs),
+    /// Measure the accelerators on identical ray sets.
+    Bench(bench::BenchArgs),
+}
+
+/// Runs the command line and turns the outcome into an exit code.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = crate::simd::from_env()
+        .map_err(CliError::from)
+        .and_then(|_| match cli.command {
+            Command::Info(a) => info::run(a),
+            Command::Trace(a) => trace::run(a),
+            Command::Render(a) => render::run(a),
+            Command::Bench(a) => bench::run(a),
+        });
+    match result {
+        Ok(json) => {
+            println!("{json}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("rayd: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Options every tracing command shares: which core, how it is built, how many threads.
+#[derive(clap::Args, Debug, Clone)]
+struct CoreArgs {
+    /// Accelerator: auto, brute, mbvh8, mbvh4, bvh2, dacrt, dacrt-sampled, embree.
+    #[arg(long, default_value = "auto", value_parser = parse_accel)]
+    accel: AccelKind,
+    /// Build quality of the BVH accelerators: fast, sah, sbvh.
+    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    build: BuildQuality,
+    /// Ray/triangle test: fast (Möller–Trumbore) or watertight.
+    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    precision: Precision,
+    /// Threads for every phase; 0 or absent: all cores.
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Animation time in seconds (absent: the file's static pose).
+    #[arg(long)]
+    time: Option<f64>,
+}
+
+impl CoreArgs {
+    /// A thread pool of exactly the requested size; every phase runs inside it.
+    fn pool(&self) -> Result<rayon::ThreadPool, CliError> {
+        Ok(rayon::ThreadPoolBuilder::new()
+            .num_threads(self.threads)
+            .build()?)
+    }
+
+    fn load_options(&self) -> Result<crate::formats::LoadOptions, CliError> {
+        if let Some(t) = self.time {
+            if !t.is_finite() {
+                return Err(CliError::Usage(format!(
+                    "--time {t} is not a finite number"
+                )));
+            }
+        }
+        Ok(crate::formats::LoadOptions { time: self.time })
+    }
+}
+
+fn parse_accel(s: &str) -> Result<AccelKind, String> {
+    AccelKind::parse(s).ok_or_else(|| {
+        let names: Vec<_> = AccelKind::ALL.iter().map(|k| k.name()).collect();
+        format!("unknown accelerator '{s}' (one of: {})", names.join(", "))
+    })
+}
+
+fn parse_build(s: &str) -> Result<BuildQuality, String> {
+    match s {
+        "fast" => Ok(BuildQuality::Fast),
+        "sah" => Ok(BuildQuality::Sah),
+        "sbvh" => Ok(BuildQuality::Sbvh),
+        _ => Err(format!("unknown build quality '{s}' (fast, sah or sbvh)")),
+    }
+}
+
+fn parse_precision(s: &str) -> Result<Precision, String> {
+    match s {
+        "fast" => Ok(Precision::Fast),
+        "watertight" => Ok(Precision::Watertight),
+        _ => Err(format!("unknown precision '{s}' (fast or watertight)")),
+    }
+}
+
+fn parse_query(s: &str) -> Result<Query, String> {
+    match s {
+        "closest" => Ok(Query::Closest),
+        "any" => Ok(Query::Any),
+        _ => Err(format!("unknown query '{s}' (closest or any)")),
+    }
+}
+
+fn parse_hit(s: &str) -> Result<HitFormat, String> {
+    HitFormat::parse(s)
+        .ok_or_else(|| format!("unknown hit format '{s}' (t_prim_uv, t_prim, t or occluded)"))
+}
+
+fn parse_integrator(s: &str) -> Result<Integrator, String> {
+    Integrator::parse(s)
+        .ok_or_else(|| format!("unknown integrator '{s}' (primary, normals, ao or path)"))
+}
+
+fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("'{s}' is not three comma-separated numbers"));
+    }
+    let mut v = [0.0; 3];
+    for (x, p) in v.iter_mut().zip(parts) {
+        *x = p
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("'{p}' in '{s}' is not a finite number"))?;
+    }
+    Ok(v)
+}
+
+/// A path argument.
+type PathArg = PathBuf;

@@ -331,6 +331,14 @@ pub fn write_hits(hits: &[Hit], format: HitFormat) -> Vec<u8> {
     out
 }
 
+/// Writes `occluded` flags (one byte a ray, 0 or 1) as a HIT1 body of format 3, for the
+/// cores' [`occluded`](crate::accel::Intersector::occluded) answers that carry no fields.
+pub fn write_occluded(flags: &[u8]) -> Vec<u8> {
+    let mut out = header(HIT1_MAGIC, HitFormat::Occluded.code(), flags.len(), 1);
+    out.extend(flags.iter().map(|&f| u8::from(f != 0)));
+    out
+}
+
 /// Reads a HIT1 body. Fields the format does not carry come back as the miss's values
 /// (`prim` is set to 0 for an occluded hit, `u = v = 0`), so compare only what was written.
 pub fn read_hits(bytes: &[u8]) -> Result<(HitFormat, Vec<Hit>), BinaryError> {

@@ -26,3 +26,13 @@ impl Backend {
 pub fn selected() -> Backend {
     Backend::Scalar
 }
+
+/// A SIMD backend request that cannot be met (placeholder).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct SimdError(String);
+
+/// Reads `RAYD_SIMD` (placeholder).
+pub fn from_env() -> Result<Backend, SimdError> {
+    Ok(selected())
+}

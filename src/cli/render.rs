@@ -1,0 +1,151 @@
+//! `rayd render SCENE -o OUT.png|OUT.exr`.
+
+use std::time::Instant;
+
+use serde_json::json;
+
+use super::{parse_integrator, parse_vec3, CliError, CoreArgs, PathArg};
+use crate::accel::BuildOptions;
+use crate::render::camera::ViewCamera;
+use crate::render::image::{encode, ImageFormat};
+use crate::render::{Integrator, RenderOptions};
+
+#[derive(clap::Args, Debug)]
+pub(super) struct RenderArgs {
+    /// Scene file (.glb, .gltf or .tri).
+    scene: PathArg,
+    /// Output image; the extension (.png or .exr) picks the format.
+    #[arg(short = 'o', long = "out")]
+    out: PathArg,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 640)]
+    width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 480)]
+    height: u32,
+    /// Samples per pixel.
+    #[arg(long, default_value_t = 1)]
+    spp: u32,
+    /// primary, normals, ao or path.
+    #[arg(long, default_value = "primary", value_parser = parse_integrator)]
+    integrator: Integrator,
+    /// Diffuse bounces of the path integrator.
+    #[arg(long, default_value_t = 2)]
+    bounces: u32,
+    /// Use the scene's camera with this index.
+    #[arg(long, conflicts_with_all = ["eye", "target"])]
+    camera: Option<usize>,
+    /// Eye position x,y,z (with --target).
+    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
+    eye: Option<[f64; 3]>,
+    /// Point looked at x,y,z (with --eye).
+    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
+    target: Option<[f64; 3]>,
+    /// Up vector x,y,z.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    up: [f64; 3],
+    /// Vertical field of view in degrees.
+    #[arg(long, default_value_t = 45.0)]
+    fov: f64,
+    /// Seed of the sampling.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[command(flatten)]
+    core: CoreArgs,
+}
+
+/// Largest image side accepted, so that a typo cannot ask for terabytes.
+const MAX_SIDE: u32 = 16384;
+
+pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
+    let format = ImageFormat::from_path(&a.out).ok_or_else(|| {
+        CliError::Usage(format!(
+            "{}: the output must end in .png or .exr",
+            a.out.display()
+        ))
+    })?;
+    if a.width == 0 || a.height == 0 || a.width > MAX_SIDE || a.height > MAX_SIDE {
+        return Err(CliError::Usage(format!(
+            "image size {}x{} is outside 1..={MAX_SIDE} per side",
+            a.width, a.height
+        )));
+    }
+    if a.spp == 0 || a.spp > 65536 {
+        return Err(CliError::Usage(format!(
+            "--spp {} is outside 1..=65536",
+            a.spp
+        )));
+    }
+    let scene = crate::formats::load_scene(&a.scene, &a.core.load_options()?)?;
+    let aspect = a.width as f64 / a.height as f64;
+    let camera = match (a.camera, a.eye, a.target) {
+        (Some(i), _, _) => {
+            let cam =
+                scene
+                    .cameras
+                    .get(i)
+                    .ok_or(crate::render::camera::CameraError::NoSuchCamera {
+                        index: i,
+                        count: scene.cameras.len(),
+                    })?;
+            ViewCamera::from_scene(cam, aspect)?
+        }
+        (None, Some(eye), Some(target)) => ViewCamera::look_at(eye, target, a.up, a.fov, aspect)?,
+        _ => match (scene.cameras.first(), scene.bounds()) {
+            (Some(cam), _) => ViewCamera::from_scene(cam, aspect)?,
+            (None, Some(b)) => ViewCamera::framing(&b, aspect),
+            (None, None) => ViewCamera::look_at([0.0, 0.0, 1.0], [0.0; 3], a.up, a.fov, aspect)?,
+        },
+    };
+    let diagonal = scene.bounds().map(|b| b.diagonal()).unwrap_or(1.0);
+    let rays_estimate = a.width as usize * a.height as usize * a.spp as usize;
+    let kind = a.core.accel.resolve(rays_estimate, scene.triangles.len());
+    let pool = a.core.pool()?;
+    let threads = pool.current_num_threads();
+    let options = BuildOptions {
+        quality: a.core.build,
+        precision: a.core.precision,
+        threads,
+    };
+    let opts = RenderOptions {
+        width: a.width,
+        height: a.height,
+        spp: a.spp,
+        integrator: a.integrator,
+        bounces: a.bounces,
+        seed: a.seed,
+    };
+    let (accel_name, build_seconds, image, stats, render_seconds) = pool.install(|| {
+        let t0 = Instant::now();
+        let accel = crate::accel::build(kind, &scene.triangles, &options)?;
+        let build_seconds = t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        let (image, stats) =
+            crate::render::render(&scene.triangles, accel.as_ref(), &camera, &opts, diagonal);
+        Ok::<_, CliError>((
+            accel.name(),
+            build_seconds,
+            image,
+            stats,
+            t1.elapsed().as_secs_f64(),
+        ))
+    })?;
+    let bytes = encode(&image, format)?;
+    std::fs::write(&a.out, bytes).map_err(|source| crate::formats::FormatError::Io {
+        path: a.out.display().to_string(),
+        source,
+    })?;
+    Ok(json!({
+        "out": a.out.display().to_string(),
+        "width": a.width,
+        "height": a.height,
+        "spp": a.spp,
+        "integrator": a.integrator.name(),
+        "accel": accel_name,
+        "threads": threads,
+        "rays": stats.rays,
+        "build_seconds": build_seconds,
+        "trace_seconds": stats.trace_seconds,
+        "render_seconds": render_seconds,
+    }))
+}

@@ -1,0 +1,247 @@
+//! Cameras that turn pixel positions into primary rays: the scene's own glTF cameras, a
+//! look-at camera from the command line, or a default view that frames the scene.
+
+use crate::geometry::{Aabb, Ray};
+use crate::scene::{Camera, Projection};
+
+/// A camera ready to make rays: an orthonormal frame and a projection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewCamera {
+    eye: [f64; 3],
+    right: [f64; 3],
+    up: [f64; 3],
+    forward: [f64; 3],
+    kind: ViewKind,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum ViewKind {
+    /// Half-extents of the image plane at distance 1 (tan of half the field of view).
+    Perspective { half_w: f64, half_h: f64 },
+    /// Half-extents of the view volume in world units.
+    Orthographic { half_w: f64, half_h: f64 },
+}
+
+/// Errors in a camera description.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CameraError {
+    /// `--camera INDEX` names a camera the scene does not have.
+    #[error("camera {index} does not exist (the scene has {count} camera(s))")]
+    NoSuchCamera {
+        /// Requested index.
+        index: usize,
+        /// Cameras in the scene.
+        count: usize,
+    },
+    /// Eye equals target, up is parallel to the view direction, or a value is not finite.
+    #[error("degenerate camera: {0}")]
+    Degenerate(&'static str),
+    /// The field of view is outside (0, 180) degrees.
+    #[error("field of view {0} degrees is outside (0, 180)")]
+    BadFov(f64),
+}
+
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
+    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (l > 0.0 && l.is_finite()).then(|| [v[0] / l, v[1] / l, v[2] / l])
+}
+
+impl ViewCamera {
+    /// A perspective camera at `eye` looking at `target`, `fov_deg` the vertical field of
+    /// view, for an image of the given aspect (width / height).
+    pub fn look_at(
+        eye: [f64; 3],
+        target: [f64; 3],
+        up: [f64; 3],
+        fov_deg: f64,
+        aspect: f64,
+    ) -> Result<ViewCamera, CameraError> {
+        if !(fov_deg > 0.0 && fov_deg < 180.0) {
+            return Err(CameraError::BadFov(fov_deg));
+        }
+        if !eye.iter().chain(&target).chain(&up).all(|x| x.is_finite()) {
+            return Err(CameraError::Degenerate("eye, target and up must be finite"));
+        }
+        let forward = unit(sub(target, eye)).ok_or(CameraError::Degenerate("eye equals target"))?;
+        let right = unit(cross(forward, up)).ok_or(CameraError::Degenerate(
+            "up is parallel to the view direction",
+        ))?;
+        let up = cross(right, forward);
+        let half_h = (fov_deg.to_radians() * 0.5).tan();
+        Ok(ViewCamera {
+            eye,
+            right,
+            up,
+            forward,
+            kind: ViewKind::Perspective {
+                half_w: half_h * aspect,
+                half_h,
+            },
+        })
+    }
+
+    /// The scene's glTF camera; `aspect` is used when the camera gives none (and always for
+    /// the image plane's width, so pixels stay square).
+    pub fn from_scene(camera: &Camera, aspect: f64) -> Result<ViewCamera, CameraError> {
+        let m = camera.to_world;
+        let col = |c: usize| [m[c][0], m[c][1], m[c][2]];
+        let right = unit(col(0)).ok_or(CameraError::Degenerate("camera transform is singular"))?;
+        let up = unit(col(1)).ok_or(CameraError::Degenerate("camera transform is singular"))?;
+        let back = unit(col(2)).ok_or(CameraError::Degenerate("camera transform is singular"))?;
+        let kind = match camera.projection {
+            Projection::Perspective { yfov, .. } => {
+                if !(yfov > 0.0 && yfov < std::f64::consts::PI) {
+                    return Err(CameraError::BadFov(yfov.to_degrees()));
+                }
+                let half_h = (yfov * 0.5).tan();
+                ViewKind::Perspective {
+                    half_w: half_h * aspect,
+                    half_h,
+                }
+            }
+            Projection::Orthographic { ymag, .. } => ViewKind::Orthographic {
+                half_w: ymag.abs() * aspect,
+                half_h: ymag.abs(),
+            },
+        };
+        Ok(ViewCamera {
+            eye: col(3),
+            right,
+            up,
+            forward: [-back[0], -back[1], -back[2]],
+            kind,
+        })
+    }
+
+    /// A default view that frames `bounds`: looking at its centre from the front-right and a
+    /// little above, far enough that the bounding sphere fills the 45° field of view.
+    pub fn framing(bounds: &Aabb, aspect: f64) -> ViewCamera {
+        let c = bounds.center().map(f64::from);
+        let radius = (0.5 * bounds.diagonal() as f64).max(1e-3);
+        let fov: f64 = 45.0;
+        let dist = radius / (fov.to_radians() * 0.5).sin() * 1.05;
+        let dir = unit([0.55, 0.35, 1.0]).expect("constant is not zero");
+        let eye = [
+            c[0] + dir[0] * dist,
+            c[1] + dir[1] * dist,
+            c[2] + dir[2] * dist,
+        ];
+        ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], fov, aspect)
+            .expect("framing camera is never degenerate")
+    }
+
+    /// Where the camera is.
+    pub fn eye(&self) -> [f64; 3] {
+        self.eye
+    }
+
+    /// The primary ray through image position `(x, y)` in pixels (x right, y down, pixel
+    /// centres at +0.5) of a `width` × `height` image; unit direction, `[0, inf]`.
+    #[inline]
+    pub fn ray(&self, x: f64, y: f64, width: u32, height: u32) -> Ray {
+        let sx = 2.0 * x / width as f64 - 1.0;
+        let sy = 1.0 - 2.0 * y / height as f64;
+        let (org, dir) = match self.kind {
+            ViewKind::Perspective { half_w, half_h } => {
+                let (a, b) = (sx * half_w, sy * half_h);
+                let d = [
+                    self.forward[0] + a * self.right[0] + b * self.up[0],
+                    self.forward[1] + a * self.right[1] + b * self.up[1],
+                    self.forward[2] + a * self.right[2] + b * self.up[2],
+                ];
+                (self.eye, unit(d).unwrap_or(self.forward))
+            }
+            ViewKind::Orthographic { half_w, half_h } => {
+                let (a, b) = (sx * half_w, sy * half_h);
+                let o = [
+                    self.eye[0] + a * self.right[0] + b * self.up[0],
+                    self.eye[1] + a * self.right[1] + b * self.up[1],
+                    self.eye[2] + a * self.right[2] + b * self.up[2],
+                ];
+                (o, self.forward)
+            }
+        };
+        Ray {
+            org: org.map(|v| v as f32),
+            tmin: 0.0,
+            dir: dir.map(|v| v as f32),
+            tmax: f32::INFINITY,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn look_at_centre_ray_points_at_target() {
+        let cam =
+            ViewCamera::look_at([0.0, 0.0, 5.0], [0.0; 3], [0.0, 1.0, 0.0], 60.0, 1.5).unwrap();
+        let r = cam.ray(50.0, 50.0, 100, 100);
+        assert_eq!(r.org, [0.0, 0.0, 5.0]);
+        assert!((r.dir[2] + 1.0).abs() < 1e-6 && r.dir[0].abs() < 1e-6);
+        // Top-left pixel goes left and up.
+        let r = cam.ray(0.0, 0.0, 100, 100);
+        assert!(r.dir[0] < 0.0 && r.dir[1] > 0.0);
+        // Vertical half angle is 30°.
+        let r = cam.ray(50.0, 0.0, 100, 100);
+        assert!((r.dir[1] / -r.dir[2] - (30f32).to_radians().tan()).abs() < 1e-5);
+    }
+
+    #[test]
+    fn degenerate_inputs_are_errors() {
+        let e = ViewCamera::look_at([1.0; 3], [1.0; 3], [0.0, 1.0, 0.0], 45.0, 1.0);
+        assert!(matches!(e, Err(CameraError::Degenerate(_))));
+        let e = ViewCamera::look_at([0.0; 3], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0], 45.0, 1.0);
+        assert!(matches!(e, Err(CameraError::Degenerate(_))));
+        let e = ViewCamera::look_at([0.0; 3], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0], 180.0, 1.0);
+        assert!(matches!(e, Err(CameraError::BadFov(_))));
+    }
+
+    #[test]
+    fn gltf_camera_looks_down_minus_z() {
+        let cam = Camera {
+            to_world: [
+                [1.0, 0.0, 0.0, 0.0],
+                [0.0, 1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0, 0.0],
+                [1.0, 2.0, 3.0, 1.0],
+            ],
+            projection: Projection::Perspective {
+                yfov: 0.8,
+                aspect: None,
+            },
+        };
+        let v = ViewCamera::from_scene(&cam, 1.0).unwrap();
+        let r = v.ray(0.5, 0.5, 1, 1);
+        assert_eq!(r.org, [1.0, 2.0, 3.0]);
+        assert_eq!(r.dir, [0.0, 0.0, -1.0]);
+    }
+
+    #[test]
+    fn framing_sees_the_box_centre() {
+        let b = Aabb {
+            min: [-1.0, 0.0, -2.0],
+            max: [3.0, 1.0, 2.0],
+        };
+        let cam = ViewCamera::framing(&b, 1.0);
+        let r = cam.ray(0.5, 0.5, 1, 1);
+        let c = b.center();
+        let to_c = [c[0] - r.org[0], c[1] - r.org[1], c[2] - r.org[2]];
+        let l = crate::geometry::dot(to_c, to_c).sqrt();
+        assert!((crate::geometry::dot(to_c, r.dir) / l - 1.0).abs() < 1e-5);
+    }
+}
