@@ -1,6 +1,412 @@
-//! Benchmarks (placeholder).
+//! `rayd bench`: every selected accelerator traces exactly the same rays, and the time spent
+//! inside the intersector is all that is counted (Áfra 2013 §5).
+//!
+//! For each scene: a view (the scene's camera 0, a default framing view, or one given), a
+//! *room* around the scene for interior views so that every ray hits and every bounce keeps
+//! the full batch, and ray sets made once from a fixed seed: primary, ambient occlusion, and
+//! the rays of diffuse bounces 1, 2 and 8. Each accelerator is built and traced single- and
+//! multi-threaded, the median of several runs is reported, and its hits are checked against
+//! a reference.
 
-/// Errors of a benchmark.
+mod raysets;
+mod report;
+mod view;
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
+use crate::geometry::Hit;
+pub use raysets::{RaySet, SetKind};
+pub use report::{render_csv, render_table};
+pub use view::{View, ViewKind};
+
+/// Errors of a benchmark run.
 #[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct BenchError(String);
+pub enum BenchError {
+    /// A scene could not be loaded.
+    #[error(transparent)]
+    Format(#[from] crate::formats::FormatError),
+    /// An accelerator could not be built.
+    #[error(transparent)]
+    Accel(#[from] crate::accel::AccelError),
+    /// The camera is unusable.
+    #[error(transparent)]
+    Camera(#[from] crate::render::camera::CameraError),
+    /// A thread pool could not be made.
+    #[error("cannot start the thread pool: {0}")]
+    Pool(#[from] rayon::ThreadPoolBuildError),
+    /// The configuration is unusable.
+    #[error("{0}")]
+    Config(String),
+    /// Writing a dump failed.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: String,
+        /// The OS error.
+        source: std::io::Error,
+    },
+}
+
+/// Which camera a benchmark view uses.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub enum CameraChoice {
+    /// glTF camera 0 when the scene has one, else a default view framing the bounds.
+    #[default]
+    Auto,
+    /// The scene's camera with this index.
+    Scene(usize),
+    /// A look-at camera.
+    LookAt {
+        /// Eye.
+        eye: [f64; 3],
+        /// Point looked at.
+        target: [f64; 3],
+        /// Up vector.
+        up: [f64; 3],
+        /// Vertical field of view in degrees.
+        fov: f64,
+    },
+}
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct BenchConfig {
+    /// Scene files.
+    pub scenes: Vec<PathBuf>,
+    /// Accelerators to measure (`auto` is resolved per scene).
+    pub accels: Vec<AccelKind>,
+    /// Ray sets to make and trace.
+    pub sets: Vec<SetKind>,
+    /// Views per scene.
+    pub views: Vec<ViewKind>,
+    /// Image width (rays per set = width × height).
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Camera.
+    pub camera: CameraChoice,
+    /// Timed runs per measurement; the median is reported.
+    pub runs: usize,
+    /// Thread counts to measure (0 = all cores).
+    pub threads: Vec<usize>,
+    /// Seed of the ray sets.
+    pub seed: u64,
+    /// Build quality for the BVH accelerators and Embree.
+    pub build: BuildQuality,
+    /// Ray/triangle test.
+    pub precision: Precision,
+    /// Reference accelerator (`auto`: embree when built in, else brute).
+    pub reference: AccelKind,
+    /// Animation time.
+    pub time: Option<f64>,
+    /// Where to write each ray set (RAY1) and the reference hits (HIT1).
+    pub dump: Option<PathBuf>,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        BenchConfig {
+            scenes: Vec::new(),
+            accels: vec![AccelKind::Auto],
+            sets: SetKind::ALL.to_vec(),
+            views: vec![ViewKind::Interior],
+            width: 1024,
+            height: 768,
+            camera: CameraChoice::Auto,
+            runs: 5,
+            threads: vec![1, 0],
+            seed: 1,
+            build: BuildQuality::default(),
+            precision: Precision::default(),
+            reference: AccelKind::Auto,
+            time: None,
+            dump: None,
+        }
+    }
+}
+
+/// One accelerator × thread count × ray set.
+#[derive(Clone, Debug, Serialize)]
+pub struct Measurement {
+    /// Accelerator name.
+    pub accel: String,
+    /// Threads used.
+    pub threads: usize,
+    /// Ray set name.
+    pub set: String,
+    /// Rays in the set.
+    pub rays: usize,
+    /// Median trace seconds.
+    pub seconds: f64,
+    /// Rays / median seconds / 1e6.
+    pub mrays_per_s: f64,
+    /// Every run's seconds, in order.
+    pub runs: Vec<f64>,
+    /// Fraction of rays whose answer matches the reference (same triangle, or the same t
+    /// within 1e-5 relative; for AO the same occlusion).
+    pub agreement: f64,
+    /// Rays that do not match.
+    pub disagreements: usize,
+}
+
+/// One accelerator × thread count build.
+#[derive(Clone, Debug, Serialize)]
+pub struct BuildMeasurement {
+    /// Accelerator name.
+    pub accel: String,
+    /// Threads used.
+    pub threads: usize,
+    /// Median build seconds.
+    pub seconds: f64,
+    /// Bytes the accelerator holds.
+    pub bytes: usize,
+}
+
+/// The results of one scene and view.
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneReport {
+    /// Scene file.
+    pub scene: String,
+    /// Triangles of the scene (without the room).
+    pub triangles: usize,
+    /// Triangles traced (with the room for interior views).
+    pub traced_triangles: usize,
+    /// `interior` or `exterior`.
+    pub view: String,
+    /// The camera used, in words.
+    pub camera: String,
+    /// The accelerator whose hits are the reference.
+    pub reference: String,
+    /// Rays per set.
+    pub sets: Vec<(String, usize)>,
+    /// Build times.
+    pub builds: Vec<BuildMeasurement>,
+    /// Trace times.
+    pub results: Vec<Measurement>,
+}
+
+/// The whole run.
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    /// Logical cores of the machine.
+    pub cores: usize,
+    /// SIMD backend.
+    pub simd: String,
+    /// Width × height.
+    pub resolution: [u32; 2],
+    /// Runs per measurement.
+    pub runs: usize,
+    /// Build quality.
+    pub build: String,
+    /// Precision.
+    pub precision: String,
+    /// Seed.
+    pub seed: u64,
+    /// Per scene and view.
+    pub scenes: Vec<SceneReport>,
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(|a, b| a.total_cmp(b));
+    if s.is_empty() {
+        return 0.0;
+    }
+    let m = s.len() / 2;
+    if s.len() % 2 == 1 {
+        s[m]
+    } else {
+        0.5 * (s[m - 1] + s[m])
+    }
+}
+
+fn pool(threads: usize) -> Result<rayon::ThreadPool, BenchError> {
+    Ok(rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?)
+}
+
+/// Traces a set the way it is judged: AO with the `any` query answering occlusion only,
+/// everything else `closest`.
+fn trace_set(accel: &dyn Intersector, set: &RaySet, hits: &mut [Hit], flags: &mut [u8]) {
+    if set.kind == SetKind::Ao {
+        accel.occluded(&set.rays, flags);
+    } else {
+        accel.trace(&set.rays, Query::Closest, hits);
+    }
+}
+
+/// Counts rays whose answer differs from the reference's.
+fn disagreements(set: &RaySet, hits: &[Hit], flags: &[u8]) -> usize {
+    if set.kind == SetKind::Ao {
+        return flags
+            .iter()
+            .zip(&set.reference)
+            .filter(|(f, r)| (**f != 0) != r.is_hit())
+            .count();
+    }
+    hits.iter()
+        .zip(&set.reference)
+        .filter(|(h, r)| !same_answer(h, r))
+        .count()
+}
+
+/// The same triangle, or the same distance (a tie between coplanar or adjacent triangles).
+pub fn same_answer(a: &Hit, b: &Hit) -> bool {
+    if a.prim == b.prim {
+        return true;
+    }
+    if !a.is_hit() || !b.is_hit() {
+        return false;
+    }
+    (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30)
+}
+
+/// Runs the benchmark; progress goes to stderr.
+pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
+    if config.scenes.is_empty() {
+        return Err(BenchError::Config("no scene given".into()));
+    }
+    if config.runs == 0 || config.width == 0 || config.height == 0 {
+        return Err(BenchError::Config(
+            "--runs, --width and --height must be at least 1".into(),
+        ));
+    }
+    for &k in &config.accels {
+        if !k.available() {
+            return Err(crate::accel::AccelError::Unavailable(k.name()).into());
+        }
+    }
+    let mut report = BenchReport {
+        cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        simd: crate::simd::selected().name().into(),
+        resolution: [config.width, config.height],
+        runs: config.runs,
+        build: config.build.name().into(),
+        precision: config.precision.name().into(),
+        seed: config.seed,
+        scenes: Vec::new(),
+    };
+    let all = pool(0)?;
+    for path in &config.scenes {
+        let scene =
+            crate::formats::load_scene(path, &crate::formats::LoadOptions { time: config.time })?;
+        for &view_kind in &config.views {
+            let view = View::new(
+                &scene,
+                view_kind,
+                &config.camera,
+                config.width,
+                config.height,
+            )?;
+            let reference = match config.reference {
+                AccelKind::Auto if AccelKind::Embree.available() => AccelKind::Embree,
+                AccelKind::Auto => AccelKind::Brute,
+                k => k,
+            };
+            eprintln!(
+                "bench: {} ({} triangles, {} view): making ray sets with {}",
+                path.display(),
+                scene.triangles.len(),
+                view_kind.name(),
+                reference.name()
+            );
+            let options = BuildOptions {
+                quality: config.build,
+                precision: config.precision,
+                threads: all.current_num_threads(),
+            };
+            let ref_accel =
+                all.install(|| crate::accel::build(reference, &view.triangles, &options))?;
+            let sets = all.install(|| {
+                raysets::make_sets(&view, ref_accel.as_ref(), &config.sets, config.seed)
+            });
+            drop(ref_accel);
+            if let Some(dir) = &config.dump {
+                raysets::dump(dir, path, view_kind, &sets)?;
+            }
+            let mut scene_report = SceneReport {
+                scene: path.display().to_string(),
+                triangles: scene.triangles.len(),
+                traced_triangles: view.triangles.len(),
+                view: view_kind.name().into(),
+                camera: view.camera_description.clone(),
+                reference: reference.name().into(),
+                sets: sets
+                    .iter()
+                    .map(|s| (s.kind.name().to_string(), s.rays.len()))
+                    .collect(),
+                builds: Vec::new(),
+                results: Vec::new(),
+            };
+            let rays_total: usize = sets.iter().map(|s| s.rays.len()).sum();
+            for &kind in &config.accels {
+                let kind = kind.resolve(rays_total, view.triangles.len());
+                for &threads in &config.threads {
+                    let p = pool(threads)?;
+                    let threads = p.current_num_threads();
+                    let options = BuildOptions { threads, ..options };
+                    let mut build_times = Vec::new();
+                    let mut accel = None;
+                    for _ in 0..config.runs {
+                        drop(accel.take());
+                        let t0 = Instant::now();
+                        let a =
+                            p.install(|| crate::accel::build(kind, &view.triangles, &options))?;
+                        build_times.push(t0.elapsed().as_secs_f64());
+                        accel = Some(a);
+                    }
+                    let accel = accel.expect("runs >= 1");
+                    scene_report.builds.push(BuildMeasurement {
+                        accel: accel.name().into(),
+                        threads,
+                        seconds: median(&build_times),
+                        bytes: accel.bytes(),
+                    });
+                    for set in &sets {
+                        let mut hits = vec![Hit::MISS; set.rays.len()];
+                        let mut flags = vec![0u8; set.rays.len()];
+                        let mut times = Vec::with_capacity(config.runs);
+                        for _ in 0..config.runs {
+                            let t0 = Instant::now();
+                            p.install(|| trace_set(accel.as_ref(), set, &mut hits, &mut flags));
+                            times.push(t0.elapsed().as_secs_f64());
+                        }
+                        let bad = disagreements(set, &hits, &flags);
+                        let secs = median(&times);
+                        let m = Measurement {
+                            accel: accel.name().into(),
+                            threads,
+                            set: set.kind.name().into(),
+                            rays: set.rays.len(),
+                            seconds: secs,
+                            mrays_per_s: if secs > 0.0 {
+                                set.rays.len() as f64 / secs / 1e6
+                            } else {
+                                0.0
+                            },
+                            runs: times,
+                            agreement: if set.rays.is_empty() {
+                                1.0
+                            } else {
+                                1.0 - bad as f64 / set.rays.len() as f64
+                            },
+                            disagreements: bad,
+                        };
+                        eprintln!(
+                            "bench:   {:<14} {:>2} thr  {:<9} {:>8.3} Mray/s  agree {:.6}",
+                            m.accel, m.threads, m.set, m.mrays_per_s, m.agreement
+                        );
+                        scene_report.results.push(m);
+                    }
+                }
+            }
+            report.scenes.push(scene_report);
+        }
+    }
+    Ok(report)
+}

@@ -1,9 +1,127 @@
-//! `rayd bench` (placeholder).
-use super::CliError;
+//! `rayd bench SCENE... [options]`: the benchmark suite. The JSON report goes to stdout as
+//! every command's result does; the table goes to stderr (or to stdout with
+//! `--format table`, CSV with `--format csv`).
+
+use super::{parse_accel, parse_build, parse_precision, parse_vec3, CliError, PathArg};
+use crate::accel::{AccelKind, BuildQuality, Precision};
+use crate::bench::{BenchConfig, CameraChoice, SetKind, ViewKind};
 
 #[derive(clap::Args, Debug)]
-pub(super) struct BenchArgs {}
+pub(super) struct BenchArgs {
+    /// Scene files.
+    #[arg(required = true)]
+    scenes: Vec<PathArg>,
+    /// Accelerators to measure, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "auto", value_parser = parse_accel)]
+    accel: Vec<AccelKind>,
+    /// Ray sets: primary, ao, diffuse1, diffuse2, diffuse8 (comma-separated).
+    #[arg(long, value_delimiter = ',', default_value = "primary,ao,diffuse1,diffuse2,diffuse8", value_parser = parse_set)]
+    sets: Vec<SetKind>,
+    /// Views: interior (camera inside a closed room, every ray hits), exterior.
+    #[arg(long, value_delimiter = ',', default_value = "interior", value_parser = parse_view)]
+    view: Vec<ViewKind>,
+    /// Image width: rays per set = width × height.
+    #[arg(long, default_value_t = 1024)]
+    width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 768)]
+    height: u32,
+    /// Use the scene's camera with this index (default: camera 0 if any, else a default view).
+    #[arg(long, conflicts_with = "eye")]
+    camera: Option<usize>,
+    /// Eye x,y,z of a look-at camera (with --target).
+    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
+    eye: Option<[f64; 3]>,
+    /// Target x,y,z of a look-at camera.
+    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
+    target: Option<[f64; 3]>,
+    /// Up vector of a look-at camera.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    up: [f64; 3],
+    /// Vertical field of view of a look-at camera, degrees.
+    #[arg(long, default_value_t = 60.0)]
+    fov: f64,
+    /// Timed runs per measurement (median reported).
+    #[arg(long, default_value_t = 5)]
+    runs: usize,
+    /// Thread counts to measure, comma-separated; 0 = all cores.
+    #[arg(long, value_delimiter = ',', default_value = "1,0")]
+    threads: Vec<usize>,
+    /// Seed of the ray sets.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Build quality: fast, sah, sbvh (embree: LOW, MEDIUM, HIGH).
+    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    build: BuildQuality,
+    /// Ray/triangle test: fast or watertight.
+    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    precision: Precision,
+    /// Reference for the agreement check (auto: embree when built in, else brute).
+    #[arg(long, default_value = "auto", value_parser = parse_accel)]
+    reference: AccelKind,
+    /// Animation time in seconds.
+    #[arg(long)]
+    time: Option<f64>,
+    /// Write each ray set (RAY1) and the reference hits (HIT1) into this directory.
+    #[arg(long)]
+    dump: Option<PathArg>,
+    /// What goes to stdout: json (the report), table (Markdown) or csv.
+    #[arg(long, default_value = "json", value_parser = ["json", "table", "csv"])]
+    format: String,
+}
 
-pub(super) fn run(_a: BenchArgs) -> Result<serde_json::Value, CliError> {
-    Ok(serde_json::json!({}))
+fn parse_set(s: &str) -> Result<SetKind, String> {
+    SetKind::parse(s).ok_or_else(|| {
+        format!("unknown ray set '{s}' (primary, ao, diffuse1, diffuse2 or diffuse8)")
+    })
+}
+
+fn parse_view(s: &str) -> Result<ViewKind, String> {
+    ViewKind::parse(s).ok_or_else(|| format!("unknown view '{s}' (interior or exterior)"))
+}
+
+pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
+    let camera = match (a.camera, a.eye, a.target) {
+        (Some(i), _, _) => CameraChoice::Scene(i),
+        (None, Some(eye), Some(target)) => CameraChoice::LookAt {
+            eye,
+            target,
+            up: a.up,
+            fov: a.fov,
+        },
+        _ => CameraChoice::Auto,
+    };
+    let config = BenchConfig {
+        scenes: a.scenes,
+        accels: a.accel,
+        sets: a.sets,
+        views: a.view,
+        width: a.width,
+        height: a.height,
+        camera,
+        runs: a.runs,
+        threads: a.threads,
+        seed: a.seed,
+        build: a.build,
+        precision: a.precision,
+        reference: a.reference,
+        time: a.time,
+        dump: a.dump,
+    };
+    let report = crate::bench::run(&config)?;
+    let table = crate::bench::render_table(&report);
+    match a.format.as_str() {
+        "table" => {
+            print!("{table}");
+            Ok(serde_json::Value::Null)
+        }
+        "csv" => {
+            print!("{}", crate::bench::render_csv(&report));
+            Ok(serde_json::Value::Null)
+        }
+        _ => {
+            eprintln!("{table}");
+            Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)
+        }
+    }
 }

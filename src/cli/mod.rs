@@ -95,7 +95,10 @@ pub fn main() -> ExitCode {
         });
     match result {
         Ok(json) => {
-            println!("{json}");
+            // `bench --format table|csv` has already printed its result.
+            if !json.is_null() {
+                println!("{json}");
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {
