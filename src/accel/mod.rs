@@ -43,10 +43,7 @@ impl AccelKind {
 
     /// Whether this build of rayd has the accelerator.
     pub fn available(self) -> bool {
-        match self {
-            AccelKind::Embree => cfg!(feature = "embree"),
-            _ => true,
-        }
+        self != AccelKind::Embree || cfg!(feature = "embree")
     }
 
     /// What `auto` becomes for a job of `rays` rays over `triangles` triangles.

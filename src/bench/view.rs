@@ -154,9 +154,9 @@ impl View {
                 max: [(c[0] + h) as f32, (c[1] + h) as f32, (c[2] + h) as f32],
             };
             let eye = camera.eye();
-            for k in 0..3 {
-                room.min[k] = room.min[k].min((eye[k] - 0.5 * radius) as f32);
-                room.max[k] = room.max[k].max((eye[k] + 0.5 * radius) as f32);
+            for (k, e) in eye.iter().enumerate() {
+                room.min[k] = room.min[k].min((e - 0.5 * radius) as f32);
+                room.max[k] = room.max[k].max((e + 0.5 * radius) as f32);
             }
             triangles.extend(box_triangles(&room));
         }

@@ -25,9 +25,9 @@ impl Aabb {
     /// Grows the box to contain `p`.
     #[inline]
     pub fn grow(&mut self, p: [f32; 3]) {
-        for k in 0..3 {
-            self.min[k] = self.min[k].min(p[k]);
-            self.max[k] = self.max[k].max(p[k]);
+        for (k, x) in p.into_iter().enumerate() {
+            self.min[k] = self.min[k].min(x);
+            self.max[k] = self.max[k].max(x);
         }
     }
 
