@@ -339,8 +339,9 @@ pub fn write_occluded(flags: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Reads a HIT1 body. Fields the format does not carry come back as the miss's values
-/// (`prim` is set to 0 for an occluded hit, `u = v = 0`), so compare only what was written.
+/// Reads a HIT1 body. Fields the format does not carry come back as the miss's values,
+/// except that `prim` is 0 for a hit of the `t` and `occluded` formats so that
+/// [`Hit::is_hit`] tells hits from misses; compare only what was written.
 pub fn read_hits(bytes: &[u8]) -> Result<(HitFormat, Vec<Hit>), BinaryError> {
     let h = parse_header(bytes, "HIT1", HIT1_MAGIC, "HIT1 formats are 0 to 3", |f| {
         HitFormat::from_code(f).map(HitFormat::record_bytes)
@@ -361,7 +362,12 @@ pub fn read_hits(bytes: &[u8]) -> Result<(HitFormat, Vec<Hit>), BinaryError> {
                 hit.t = read_f32(rec, 0);
                 hit.prim = read_u32(rec, 4);
             }
-            HitFormat::T => hit.t = read_f32(rec, 0),
+            HitFormat::T => {
+                hit.t = read_f32(rec, 0);
+                if hit.t.is_finite() {
+                    hit.prim = 0;
+                }
+            }
             HitFormat::Occluded => {
                 if rec[0] != 0 {
                     hit.t = 0.0;

@@ -1,0 +1,275 @@
+//! End-to-end tests of the `rayd` binary: the contract's command line, formats and errors.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use rayd::formats::binary::{read_hits, write_rays, write_tri, HitFormat};
+use rayd::geometry::{Hit, Ray, Triangle};
+
+fn rayd(args: &[&str]) -> (bool, serde_json::Value, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_rayd"))
+        .args(args)
+        .output()
+        .expect("runs");
+    let stdout = String::from_utf8_lossy(&out.stdout).to_string();
+    let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+    let json = serde_json::from_str(stdout.trim()).unwrap_or(serde_json::Value::Null);
+    (out.status.success(), json, stderr)
+}
+
+fn p(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+/// A unit quad in the z = 0 plane made of two triangles, plus a degenerate one.
+fn quad_scene(dir: &Path) -> PathBuf {
+    let tris = vec![
+        Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        },
+        Triangle {
+            v: [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+        },
+        Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0]],
+        },
+    ];
+    let path = dir.join("quad.tri");
+    std::fs::write(&path, write_tri(&tris)).unwrap();
+    path
+}
+
+fn down(x: f32, y: f32) -> Ray {
+    Ray {
+        org: [x, y, 1.0],
+        tmin: 0.0,
+        dir: [0.0, 0.0, -1.0],
+        tmax: f32::INFINITY,
+    }
+}
+
+#[test]
+fn info_reports_the_contract_fields() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let (ok, j, err) = rayd(&["info", p(&scene)]);
+    assert!(ok, "{err}");
+    assert_eq!(j["triangles"], 3);
+    assert_eq!(j["bounds"]["min"], serde_json::json!([0.0, 0.0, 0.0]));
+    assert_eq!(j["bounds"]["max"], serde_json::json!([2.0, 2.0, 0.0]));
+    assert_eq!(j["meshes"], 0);
+    assert_eq!(j["cameras"], 0);
+    assert_eq!(j["animations"], serde_json::json!([]));
+    assert_eq!(j["bytes"], 3 * 36);
+    assert!(["avx2", "sse", "scalar"].contains(&j["simd"].as_str().unwrap()));
+}
+
+#[test]
+fn trace_writes_every_hit_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let rays = vec![
+        down(0.25, 0.25),
+        down(0.75, 0.75),
+        down(3.0, 3.0),
+        Ray {
+            tmax: 0.5,
+            ..down(0.25, 0.25)
+        },
+        Ray {
+            tmin: 2.0,
+            tmax: 1.0,
+            ..down(0.25, 0.25)
+        },
+    ];
+    let ray_path = dir.path().join("in.ray");
+    std::fs::write(&ray_path, write_rays(&rays)).unwrap();
+    for format in HitFormat::ALL {
+        for query in ["closest", "any"] {
+            let out = dir
+                .path()
+                .join(format!("out-{}-{query}.hit", format.name()));
+            let (ok, j, err) = rayd(&[
+                "trace",
+                p(&scene),
+                "--rays",
+                p(&ray_path),
+                "--out",
+                p(&out),
+                "--hit",
+                format.name(),
+                "--query",
+                query,
+                "--threads",
+                "1",
+                "--accel",
+                "brute",
+            ]);
+            assert!(ok, "{err}");
+            assert_eq!(j["rays"], 5);
+            assert_eq!(j["accel"], "brute");
+            assert_eq!(j["threads"], 1);
+            for key in ["build_seconds", "trace_seconds", "mrays_per_s"] {
+                assert!(j[key].as_f64().unwrap() >= 0.0, "{key}");
+            }
+            let (f, hits) = read_hits(&std::fs::read(&out).unwrap()).unwrap();
+            assert_eq!(f, format);
+            let hit_mask: Vec<bool> = hits.iter().map(Hit::is_hit).collect();
+            assert_eq!(hit_mask, [true, true, false, false, false]);
+            if format == HitFormat::TPrimUv {
+                assert_eq!(hits[0].prim, 0);
+                assert_eq!(hits[1].prim, 1);
+                assert_eq!(hits[0].t, 1.0);
+                assert!((hits[0].u - 0.25).abs() < 1e-6 && (hits[0].v - 0.25).abs() < 1e-6);
+                assert_eq!(hits[2], Hit::MISS);
+            }
+        }
+    }
+}
+
+#[test]
+fn invalid_rays_refuse_the_batch_or_miss() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let mut rays = vec![down(0.25, 0.25); 6];
+    rays[2].dir = [0.0; 3];
+    rays[4].org[0] = f32::NAN;
+    let ray_path = dir.path().join("bad.ray");
+    std::fs::write(&ray_path, write_rays(&rays)).unwrap();
+    let out = dir.path().join("bad.hit");
+    let (ok, _, err) = rayd(&["trace", p(&scene), "--rays", p(&ray_path), "--out", p(&out)]);
+    assert!(!ok);
+    assert!(
+        err.contains("2 invalid ray(s)") && err.contains("ray 2"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no output may be written");
+    let (ok, _, err) = rayd(&[
+        "trace",
+        p(&scene),
+        "--rays",
+        p(&ray_path),
+        "--out",
+        p(&out),
+        "--invalid",
+        "miss",
+    ]);
+    assert!(ok, "{err}");
+    let (_, hits) = read_hits(&std::fs::read(&out).unwrap()).unwrap();
+    let mask: Vec<bool> = hits.iter().map(Hit::is_hit).collect();
+    assert_eq!(mask, [true, true, false, true, false, true]);
+}
+
+#[test]
+fn malformed_files_get_specific_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let out = dir.path().join("x.hit");
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        (b"RAY1".to_vec(), "shorter than the 16-byte header"),
+        (write_tri(&[]), "wrong magic"),
+        (
+            {
+                let mut b = write_rays(&[down(0.0, 0.0)]);
+                b.pop();
+                b
+            },
+            "needs exactly",
+        ),
+        (
+            {
+                let mut b = write_rays(&[]);
+                b[4] = 9;
+                b
+            },
+            "unknown version 9",
+        ),
+    ];
+    for (i, (bytes, needle)) in cases.into_iter().enumerate() {
+        let path = dir.path().join(format!("case{i}.ray"));
+        std::fs::write(&path, bytes).unwrap();
+        let (ok, _, err) = rayd(&["trace", p(&scene), "--rays", p(&path), "--out", p(&out)]);
+        assert!(!ok);
+        assert!(err.contains(needle), "case {i}: {err}");
+    }
+    let (ok, _, err) = rayd(&["info", "no-such-file.glb"]);
+    assert!(!ok && err.contains("no-such-file.glb"), "{err}");
+    let (ok, _, err) = rayd(&["info", "scene.obj"]);
+    assert!(!ok && err.contains("unknown scene file type"), "{err}");
+    let (ok, _, err) = rayd(&[
+        "trace",
+        p(&scene),
+        "--rays",
+        "a",
+        "--out",
+        "b",
+        "--accel",
+        "kd",
+    ]);
+    assert!(!ok && err.contains("unknown accelerator 'kd'"), "{err}");
+}
+
+#[test]
+fn render_writes_png_and_exr() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    for (name, magic) in [
+        ("a.png", &b"\x89PNG"[..]),
+        ("a.exr", &[0x76, 0x2f, 0x31, 0x01][..]),
+    ] {
+        let out = dir.path().join(name);
+        let (ok, j, err) = rayd(&[
+            "render",
+            p(&scene),
+            "-o",
+            p(&out),
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--eye",
+            "0.5,0.5,2",
+            "--target",
+            "0.5,0.5,0",
+        ]);
+        assert!(ok, "{err}");
+        assert_eq!(j["rays"], 32 * 24);
+        assert!(std::fs::read(&out).unwrap().starts_with(magic));
+    }
+    let (ok, _, err) = rayd(&["render", p(&scene), "-o", "x.jpg"]);
+    assert!(!ok && err.contains(".png or .exr"), "{err}");
+}
+
+#[test]
+fn bench_runs_and_agrees_with_its_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let dump = dir.path().join("dump");
+    let (ok, j, err) = rayd(&[
+        "bench",
+        p(&scene),
+        "--accel",
+        "brute",
+        "--width",
+        "16",
+        "--height",
+        "12",
+        "--runs",
+        "1",
+        "--threads",
+        "1",
+        "--dump",
+        p(&dump),
+    ]);
+    assert!(ok, "{err}");
+    let sc = &j["scenes"][0];
+    // Interior view: every ray of every set hits the room or the quad.
+    for set in sc["sets"].as_array().unwrap() {
+        assert_eq!(set[1], 16 * 12, "{set}");
+    }
+    for m in sc["results"].as_array().unwrap() {
+        assert_eq!(m["agreement"], 1.0, "{m}");
+    }
+    assert!(dump.join("quad-interior-diffuse8.ray").exists());
+    assert!(dump.join("quad-interior-primary.hit").exists());
+}
