@@ -8,7 +8,7 @@
 //! tie order between triangles at equal t; `precision` is ignored because Embree has a
 //! single triangle test in this configuration.
 //!
-//! The binding is a hand-written FFI ([`ffi`]) to keep the dependency surface at one system
+//! The binding is a hand-written FFI (the private `ffi` module) to keep the dependency surface at one system
 //! library. This module is the only place in the crate besides the SIMD layer that may use
 //! `unsafe`; every block says why it is sound.
 //!
@@ -179,6 +179,23 @@ fn backend(message: String) -> AccelError {
     }
 }
 
+/// Embree's pending error on `device` (with the message its callback left in `state`), as
+/// the error of the call `what`; Ok when there is none.
+fn pending_error(device: &DeviceHandle, state: &DeviceState, what: &str) -> Result<(), AccelError> {
+    // SAFETY: `device` is live for as long as its handle exists.
+    let code = unsafe { ffi::rtcGetDeviceError(device.0.as_ptr()) };
+    let message = state.take_message();
+    if code == ffi::RTC_ERROR_NONE && message.is_none() {
+        return Ok(());
+    }
+    let mut text = format!("{what} failed: {}", ffi::error_name(code));
+    if let Some(m) = message {
+        text.push_str(": ");
+        text.push_str(&m);
+    }
+    Err(backend(text))
+}
+
 /// The error of a call that returned null: Embree's pending error if it set one.
 fn failed(checked: Result<(), AccelError>, what: &str) -> AccelError {
     match checked {
@@ -244,20 +261,7 @@ impl Embree {
             ffi::rtcSetDeviceErrorFunction(device.0.as_ptr(), Some(on_error), user_ptr);
             ffi::rtcSetDeviceMemoryMonitorFunction(device.0.as_ptr(), Some(on_memory), user_ptr);
         }
-        let check = |what: &str| -> Result<(), AccelError> {
-            // SAFETY: `device` is live.
-            let code = unsafe { ffi::rtcGetDeviceError(device.0.as_ptr()) };
-            let message = state.take_message();
-            if code == ffi::RTC_ERROR_NONE && message.is_none() {
-                return Ok(());
-            }
-            let mut text = format!("{what} failed: {}", ffi::error_name(code));
-            if let Some(m) = message {
-                text.push_str(": ");
-                text.push_str(&m);
-            }
-            Err(backend(text))
-        };
+        let check = |what: &str| pending_error(&device, &state, what);
 
         // SAFETY: `device` is live.
         let scene = NonNull::new(unsafe { ffi::rtcNewScene(device.0.as_ptr()) })
@@ -602,6 +606,37 @@ mod tests {
         let text = err.to_string();
         assert!(text.starts_with("embree: rtcNewDevice"), "{text}");
         assert!(text.contains("RTC_ERROR_"), "{text}");
+    }
+
+    #[test]
+    fn device_errors_carry_code_and_message() {
+        // Declared before the device so that it is dropped after it, even on a panic.
+        let state = Box::<DeviceState>::default();
+        // SAFETY: a null config asks for Embree's defaults.
+        let device = DeviceHandle(
+            NonNull::new(unsafe { ffi::rtcNewDevice(std::ptr::null()) }).expect("device"),
+        );
+        let user_ptr = &*state as *const DeviceState as *mut c_void;
+        // SAFETY: as in `Embree::with_config`; `state` outlives `device` (drop order).
+        unsafe { ffi::rtcSetDeviceErrorFunction(device.0.as_ptr(), Some(on_error), user_ptr) };
+        assert!(pending_error(&device, &state, "nothing").is_ok());
+        // 77 is no geometry type: Embree refuses it and reports through both channels.
+        // SAFETY: `device` is live; an invalid type yields null, not UB.
+        let g = unsafe { ffi::rtcNewGeometry(device.0.as_ptr(), 77) };
+        assert!(g.is_null());
+        let text = pending_error(&device, &state, "rtcNewGeometry")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            text.starts_with("embree: rtcNewGeometry failed: RTC_ERROR_"),
+            "{text}"
+        );
+        assert!(
+            text.len() > "embree: rtcNewGeometry failed: RTC_ERROR_X".len(),
+            "{text}"
+        );
+        // The error was consumed.
+        assert!(pending_error(&device, &state, "again").is_ok());
     }
 
     #[test]
