@@ -8,13 +8,15 @@
 //! tie order between triangles at equal t; `precision` is ignored because Embree has a
 //! single triangle test in this configuration.
 //!
-//! The binding is a hand-written FFI (the private `ffi` module) to keep the dependency surface at one system
-//! library. This module is the only place in the crate besides the SIMD layer that may use
-//! `unsafe`; every block says why it is sound.
+//! The binding is a hand-written FFI (the private `ffi` module) to keep the dependency
+//! surface at one system library. This module is the only place in the crate besides the
+//! SIMD layer that may use `unsafe`; every block says why it is sound.
 //!
 //! Threads: `BuildOptions::threads` becomes Embree's `threads=N` device option, which bounds
-//! the build (Debian's Embree builds with TBB, where this is a process-wide
-//! `tbb::global_control`; two live devices with different limits share the smaller one).
+//! the build (measured: a 300k-triangle HIGH build uses 1.00 CPU-seconds per wall-second
+//! with `threads=1` and 1.97 with `threads=2` on two cores). Debian's Embree schedules with
+//! TBB, whose thread limits are process-wide, so devices alive at the same time with
+//! different limits may affect each other's build parallelism (never their results).
 //! Tracing runs on the caller's rayon pool like every other core.
 
 #![allow(unsafe_code)]
