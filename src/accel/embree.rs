@@ -1,1 +1,0 @@
-//! Embree peer (placeholder).
