@@ -11,10 +11,12 @@ use gltf::json::validation::Checked;
 
 use super::GltfError;
 
-/// Most elements an accessor without a bufferView (all zeros, plus sparse substitutions)
-/// may have. Such an accessor costs memory without costing file bytes, so it is bounded
-/// explicitly: 2^24 elements is far beyond any real sparse use.
-pub const MAX_VIEWLESS_ELEMENTS: u64 = 1 << 24;
+/// Most values (elements × components) that accessors without a bufferView (all zeros,
+/// plus sparse substitutions) may hold, all such accessors of a file together. They cost
+/// memory without costing file bytes, so they are bounded explicitly: 2^25 values (256 MiB
+/// as f64) is far beyond real sparse use (a 5-million-vertex sparse morph target needs
+/// 2^24). Everything else the loader allocates is bounded by the bytes of the file.
+pub const MAX_VIEWLESS_VALUES: u64 = 1 << 25;
 
 /// The checked byte layout of one accessor.
 #[derive(Clone, Copy, Debug)]
@@ -32,6 +34,8 @@ pub(super) struct Data<'a> {
     pub root: &'a json::Root,
     pub buffers: Vec<Cow<'a, [u8]>>,
     cache: Vec<Option<Rc<[f64]>>>,
+    /// Values of view-less accessors read so far (see [`MAX_VIEWLESS_VALUES`]).
+    viewless_values: u64,
 }
 
 fn components(ty: Type) -> usize {
@@ -90,7 +94,7 @@ pub(super) fn component_name(c: ComponentType) -> &'static str {
 
 /// `offset + len`, or an error-friendly `u64::MAX` when that overflows.
 fn end_of(offset: u64, len: u64) -> u64 {
-    offset.checked_add(len).unwrap_or(u64::MAX)
+    offset.saturating_add(len)
 }
 
 /// Reads one component and converts it to f64 with glTF's normalisation rules.
@@ -178,6 +182,7 @@ impl<'a> Data<'a> {
             root,
             buffers,
             cache: vec![None; root.accessors.len()],
+            viewless_values: 0,
         };
         for a in 0..root.accessors.len() {
             data.layout(a)?;
@@ -273,12 +278,15 @@ impl<'a> Data<'a> {
                     });
                 }
             }
-        } else if count > MAX_VIEWLESS_ELEMENTS {
-            return Err(GltfError::TooLarge {
-                accessor: a,
-                count,
-                limit: MAX_VIEWLESS_ELEMENTS,
-            });
+        } else {
+            let values = count.saturating_mul(components(ty) as u64);
+            if values > MAX_VIEWLESS_VALUES {
+                return Err(GltfError::TooLarge {
+                    accessor: a,
+                    values,
+                    limit: MAX_VIEWLESS_VALUES,
+                });
+            }
         }
         if let Some(sparse) = &acc.sparse {
             let n = sparse.count.0;
@@ -343,7 +351,7 @@ impl<'a> Data<'a> {
             ty,
             component,
             normalized: acc.normalized,
-            // Bounded by the view length (stride ≥ elemSize ≥ 1) or MAX_VIEWLESS_ELEMENTS.
+            // Bounded by the view length (stride ≥ elemSize ≥ 1) or MAX_VIEWLESS_VALUES.
             count: count as usize,
             elem_size,
         })
@@ -358,6 +366,17 @@ impl<'a> Data<'a> {
         let l = self.layout(a)?;
         let acc = &self.root.accessors[a];
         let n = components(l.ty);
+        if acc.buffer_view.is_none() {
+            let values = (l.count * n) as u64;
+            self.viewless_values += values;
+            if self.viewless_values > MAX_VIEWLESS_VALUES {
+                return Err(GltfError::TooLarge {
+                    accessor: a,
+                    values: self.viewless_values,
+                    limit: MAX_VIEWLESS_VALUES,
+                });
+            }
+        }
         let mut out = vec![0.0f64; l.count * n];
         let offsets: Vec<usize> = (0..n)
             .map(|k| component_offset(l.ty, l.component, k))

@@ -22,8 +22,30 @@ struct Prim {
     positions: Rc<[f64]>,
     /// Per morph target, its POSITION deltas (3 per vertex) if it has any.
     targets: Vec<Option<Rc<[f64]>>>,
-    /// `(JOINTS_n, WEIGHTS_n)` sets, 4 per vertex each.
-    skin_sets: Vec<(Rc<[f64]>, Rc<[f64]>)>,
+    /// `JOINTS_n`/`WEIGHTS_n` sets.
+    skin_sets: Vec<SkinSet>,
+}
+
+/// One `JOINTS_n`/`WEIGHTS_n` pair, 4 values per vertex each.
+struct SkinSet {
+    joints: Rc<[f64]>,
+    weights: Rc<[f64]>,
+}
+
+/// One node's use of a mesh.
+pub(super) struct Instance<'s> {
+    /// The node.
+    pub node: usize,
+    /// Its mesh.
+    pub mesh: usize,
+    /// The node's world transform.
+    pub world: &'s Mat4,
+    /// Its morph weights (missing ones are 0).
+    pub weights: &'s [f64],
+    /// For a skinned node, its skin and `jointWorld_j · inverseBind_j` per joint, which
+    /// replace `world` for primitives that have joint sets (glTF: the skinned mesh node's
+    /// own transform is ignored).
+    pub joints: Option<(usize, &'s [Mat4])>,
 }
 
 /// Turns mesh instances into triangles, caching decoded primitives and skin matrices.
@@ -141,7 +163,7 @@ impl Meshes {
         }
         let vertices = pl.count;
         // The sequence the mode walks: the indices, or 0..vertices.
-        let (seq, index_accessor): (Vec<u32>, Option<usize>) = match p.indices {
+        let seq: Vec<u32> = match p.indices {
             Some(ia) => {
                 let ia = ia.value();
                 data.accessor(ia, &|| format!("mesh {m} primitive {pi} indices"))?;
@@ -161,16 +183,15 @@ impl Meshes {
                     }
                     seq.push(v as u32);
                 }
-                (seq, Some(ia))
+                seq
             }
             None => {
                 if vertices > u32::MAX as usize {
                     return Err(bad_prim(m, pi, "too many vertices".to_string()));
                 }
-                ((0..vertices as u32).collect(), None)
+                (0..vertices as u32).collect()
             }
         };
-        let _ = index_accessor;
         let t = triangles_for(mode, seq.len());
         let mut corners = Vec::with_capacity(3 * t);
         for i in 0..t {
@@ -264,9 +285,9 @@ impl Meshes {
                     reason: format!("weight of vertex {} is not finite", k / 4),
                 });
             }
-            skin_sets.push((joints, weights));
+            skin_sets.push(SkinSet { joints, weights });
         }
-        for (sem, _) in &p.attributes {
+        for sem in p.attributes.keys() {
             if let Checked::Valid(Semantic::Weights(set)) = sem {
                 if attribute(p, Semantic::Joints(*set)).is_none() {
                     return Err(bad_prim(
@@ -287,22 +308,20 @@ impl Meshes {
         Ok(Some(prim))
     }
 
-    /// Appends the triangles of mesh `m` as instanced by `node`.
-    ///
-    /// `world` is the node's world transform; `weights` its morph weights (missing ones are
-    /// 0); `joints`, for a skinned node, is `jointWorld_j · inverseBind_j` per joint, which
-    /// replaces `world` for primitives that have joint sets (glTF: the skinned mesh node's
-    /// own transform is ignored).
+    /// Appends the triangles of one mesh instance.
     pub(super) fn emit(
         &mut self,
         data: &mut Data<'_>,
         out: &mut Vec<Triangle>,
-        node: usize,
-        m: usize,
-        world: &Mat4,
-        weights: &[f64],
-        joints: Option<(usize, &[Mat4])>,
+        instance: &Instance<'_>,
     ) -> Result<(), GltfError> {
+        let &Instance {
+            node,
+            mesh: m,
+            world,
+            weights,
+            joints,
+        } = instance;
         for pi in 0..data.root.meshes[m].primitives.len() {
             let Some(prim) = self.prim(data, m, pi)? else {
                 continue;
@@ -330,7 +349,11 @@ impl Meshes {
                     None => math::transform_point(world, p),
                     Some((skin_index, mats)) => {
                         let mut s = [[0.0; 4]; 4];
-                        for (js, ws) in &prim.skin_sets {
+                        for SkinSet {
+                            joints: js,
+                            weights: ws,
+                        } in &prim.skin_sets
+                        {
                             for k in 0..4 {
                                 let w = ws[4 * v + k];
                                 if w == 0.0 {

@@ -30,7 +30,7 @@ use gltf::json::validation::Checked;
 use super::LoadOptions;
 use crate::scene::{Camera, Projection, Scene};
 
-pub use accessor::MAX_VIEWLESS_ELEMENTS;
+pub use accessor::MAX_VIEWLESS_VALUES;
 pub use container::REFUSED_EXTENSIONS;
 
 /// Most triangles a scene may have. Instancing lets a small file ask for a huge scene
@@ -223,16 +223,15 @@ pub enum GltfError {
         /// What is wrong.
         reason: String,
     },
-    /// An accessor without a buffer view asks for more elements than allowed.
-    #[error(
-        "accessor {accessor}: {count} elements without a bufferView exceed the limit of {limit}"
-    )]
+    /// Accessors without a buffer view (zeros plus sparse values) ask for more memory than
+    /// allowed: they cost no file bytes, so their total is bounded.
+    #[error("accessor {accessor}: accessors without a bufferView would hold {values} values, more than the limit of {limit}")]
     TooLarge {
         /// Accessor index.
         accessor: usize,
-        /// Its count.
-        count: u64,
-        /// [`MAX_VIEWLESS_ELEMENTS`].
+        /// Values (elements × components) asked for, this accessor and earlier ones.
+        values: u64,
+        /// [`MAX_VIEWLESS_VALUES`].
         limit: u64,
     },
     /// A vertex index points past the primitive's vertices.
@@ -458,7 +457,14 @@ pub fn load(
                 }
                 None => None,
             };
-            meshes.emit(&mut data, &mut triangles, n, m, &world[n], &weights, joints)?;
+            let instance = mesh::Instance {
+                node: n,
+                mesh: m,
+                world: &world[n],
+                weights: &weights,
+                joints,
+            };
+            meshes.emit(&mut data, &mut triangles, &instance)?;
         }
         if let Some(c) = node.camera.map(|c| c.value()) {
             cameras.push(Camera {

@@ -78,8 +78,11 @@ pub(super) fn check(root: &json::Root) -> Result<Vec<Option<usize>>, GltfError> 
             cycle.push(j);
             j = parent[j].unwrap_or(first);
         }
-        // Parent pointers run child → parent; show the cycle parent → child.
+        // Parent pointers run child → parent; show the cycle parent → child, from its
+        // lowest node so that the message does not depend on where the walk started.
         cycle.reverse();
+        let lowest = (0..cycle.len()).min_by_key(|&k| cycle[k]).unwrap_or(0);
+        cycle.rotate_left(lowest);
         cycle.push(cycle[0]);
         return Err(GltfError::NodeCycle { nodes: cycle });
     }
