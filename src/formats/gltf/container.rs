@@ -351,12 +351,24 @@ mod tests {
         assert!(matches!(split(&glb), Err(GltfError::GlbLength { .. })));
         let mut glb = b"glTF".to_vec();
         glb.extend_from_slice(&2u32.to_le_bytes());
-        glb.extend_from_slice(&24u32.to_le_bytes());
+        glb.extend_from_slice(&20u32.to_le_bytes());
         glb.extend_from_slice(&100u32.to_le_bytes());
         glb.extend_from_slice(&CHUNK_JSON.to_le_bytes());
+        // A chunk that declares more bytes than remain.
         assert!(matches!(
             split(&glb),
             Err(GltfError::GlbChunk { offset: 12, .. })
         ));
+        // A chunk header cut short.
+        glb.truncate(16);
+        glb[8..12].copy_from_slice(&16u32.to_le_bytes());
+        assert!(matches!(
+            split(&glb),
+            Err(GltfError::GlbChunk { index: 0, offset: 12, .. })
+        ));
+        // A header with no chunks at all.
+        glb.truncate(12);
+        glb[8..12].copy_from_slice(&12u32.to_le_bytes());
+        assert!(matches!(split(&glb), Err(GltfError::GlbHeader(_))));
     }
 }
