@@ -1600,3 +1600,34 @@ mod fuzz {
         }
     }
 }
+
+#[test]
+fn quantized_positions_need_khr_mesh_quantization() {
+    let mut b = Builder::default();
+    // SHORT normalized, padded to a stride of 8: 32767 → 1.0, −32768 → −1.0.
+    let raw: Vec<u8> = [0i16, 0, 0, 0, 32767, 0, 0, 0, 0, -32768, 0, 0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    let view = b.view(&raw);
+    b.views[view]["byteStride"] = json!(8);
+    let acc = b.accessor(json!({"bufferView": view, "componentType": 5122, "normalized": true, "count": 3, "type": "VEC3"}));
+    let mut extra = json!({
+        "meshes": [{"primitives": [{"attributes": {"POSITION": acc}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+    });
+    let e = load_bytes(&b.glb(extra.clone())).unwrap_err();
+    assert!(
+        matches!(e, GltfError::BadAccessor { accessor: 0, .. }),
+        "{e:?}"
+    );
+    assert!(
+        e.to_string().contains("KHR_mesh_quantization") || e.to_string().contains("FLOAT"),
+        "{e}"
+    );
+    extra["extensionsUsed"] = json!(["KHR_mesh_quantization"]);
+    extra["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+    let s = load_bytes(&b.glb(extra)).unwrap();
+    assert_tri(&s, 0, [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]);
+}

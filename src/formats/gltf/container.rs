@@ -364,7 +364,11 @@ mod tests {
         glb[8..12].copy_from_slice(&16u32.to_le_bytes());
         assert!(matches!(
             split(&glb),
-            Err(GltfError::GlbChunk { index: 0, offset: 12, .. })
+            Err(GltfError::GlbChunk {
+                index: 0,
+                offset: 12,
+                ..
+            })
         ));
         // A header with no chunks at all.
         glb.truncate(12);

@@ -373,6 +373,14 @@ pub enum GltfError {
 /// `None`, only embedded buffers (GLB BIN chunk, base64 data URIs) are allowed and an
 /// external URI is [`GltfError::ExternalBufferNotAllowed`]. `options.time` evaluates every
 /// animation at that time; `None` is the static pose (CONTRACT.md §1).
+///
+/// The node graph must be a forest, as glTF requires: a node listed as a child twice, a
+/// cycle, or a scene root that has a parent or is listed twice is an error (never a loop,
+/// never a duplicated instance). Non-FLOAT positions are accepted only when the file uses
+/// `KHR_mesh_quantization`. A skinned node's primitives without `JOINTS_n`/`WEIGHTS_n` are
+/// placed by the node's world transform. Output is bounded by [`MAX_TRIANGLES`], and memory
+/// for accessors without a buffer view by [`MAX_VIEWLESS_VALUES`]; everything else is
+/// bounded by the size of the file.
 pub fn load(
     bytes: &[u8],
     base_dir: Option<&Path>,
@@ -467,6 +475,13 @@ pub fn load(
             meshes.emit(&mut data, &mut triangles, &instance)?;
         }
         if let Some(c) = node.camera.map(|c| c.value()) {
+            // Each local transform is finite, but a chain of large scales can overflow.
+            if world[n].iter().flatten().any(|v| !v.is_finite()) {
+                return Err(GltfError::BadNode {
+                    node: n,
+                    reason: "the camera's world transform is not finite".to_string(),
+                });
+            }
             cameras.push(Camera {
                 to_world: world[n],
                 projection: projection(&root, c)?,
