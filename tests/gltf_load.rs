@@ -1631,3 +1631,27 @@ fn quantized_positions_need_khr_mesh_quantization() {
     let s = load_bytes(&b.glb(extra)).unwrap();
     assert_tri(&s, 0, [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]);
 }
+
+#[test]
+fn glb_json_chunk_padded_with_nuls_is_accepted() {
+    let (b, extra) = triangle_doc();
+    let mut json = serde_json::to_vec(&b.doc(extra)).unwrap();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    json.extend_from_slice(&[0; 4]);
+    let mut bytes = b"glTF".to_vec();
+    let total = 12 + 8 + json.len() + 8 + b.bin.len();
+    bytes.extend_from_slice(&2u32.to_le_bytes());
+    bytes.extend_from_slice(&(total as u32).to_le_bytes());
+    bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(b"JSON");
+    bytes.extend_from_slice(&json);
+    bytes.extend_from_slice(&(b.bin.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(b"BIN\0");
+    bytes.extend_from_slice(&b.bin);
+    assert_tri(&load_bytes(&bytes).unwrap(), 0, TRI);
+    // A top-level value that is not an object.
+    let e = load_bytes(b"[1, 2]").unwrap_err();
+    assert!(e.to_string().contains("glTF"), "{e}");
+}

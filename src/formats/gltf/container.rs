@@ -96,7 +96,12 @@ pub(super) fn split(bytes: &[u8]) -> Result<Container<'_>, GltfError> {
         }
         let data = &bytes[start..start + length];
         match (index, kind) {
-            (0, CHUNK_JSON) => json = Some(data),
+            // Some exporters pad the JSON chunk with NULs instead of the spaces the spec
+            // asks for; the JSON parser would call them trailing garbage.
+            (0, CHUNK_JSON) => {
+                let end = data.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+                json = Some(&data[..end]);
+            }
             (0, _) => {
                 return Err(GltfError::GlbChunk {
                     index,
@@ -143,8 +148,10 @@ fn json_error(e: serde_json::Error, is_glb: bool) -> GltfError {
     }
 }
 
-/// Just the part of the document read before anything else.
+/// Just the part of the document read before anything else. (Renamed so that a parse
+/// error reads "expected struct glTF".)
 #[derive(serde::Deserialize)]
+#[serde(rename = "glTF")]
 struct RequiredOnly {
     #[serde(rename = "extensionsRequired", default)]
     required: Vec<String>,
