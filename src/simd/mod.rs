@@ -501,13 +501,3 @@ mod tests {
         assert!(Backend::supported().contains(&selected()));
     }
 }
-
-/// A SIMD backend request that cannot be met (placeholder).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct SimdError(String);
-
-/// Reads `RAYD_SIMD` (placeholder).
-pub fn from_env() -> Result<Backend, SimdError> {
-    Ok(selected())
-}
