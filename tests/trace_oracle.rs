@@ -145,10 +145,7 @@ fn borderline(ray: &Ray, tri: &Triangle) -> bool {
         None => true,
         Some(h) => {
             let p = tri.v.map(|q| q.map(f64::from));
-            let e = |a: usize, b: usize| {
-                let d = [0, 1, 2].map(|k| p[b][k] - p[a][k]);
-                d
-            };
+            let e = |a: usize, b: usize| [0, 1, 2].map(|k| p[b][k] - p[a][k]);
             let len = |d: [f64; 3]| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
             let (e1, e2) = (e(0, 1), e(0, 2));
             let n = [
