@@ -99,7 +99,7 @@ pub struct BenchConfig {
     pub build: BuildQuality,
     /// Ray/triangle test.
     pub precision: Precision,
-    /// Reference accelerator (`auto`: embree when built in, else brute).
+    /// Reference accelerator (`auto`: brute on small scenes, embree on large ones).
     pub reference: AccelKind,
     /// Animation time.
     pub time: Option<f64>,
@@ -266,6 +266,16 @@ pub fn same_answer(a: &Hit, b: &Hit) -> bool {
     (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30)
 }
 
+/// Brute force is the reference while it stays affordable (about 2·10^9 ray/triangle tests
+/// a set); beyond that, Embree where it is built in.
+fn auto_reference(triangles: usize, rays_per_set: usize) -> AccelKind {
+    if (triangles as f64) * (rays_per_set as f64) <= 2e9 || !AccelKind::Embree.available() {
+        AccelKind::Brute
+    } else {
+        AccelKind::Embree
+    }
+}
+
 /// Runs the benchmark; progress goes to stderr.
 pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
     if config.scenes.is_empty() {
@@ -303,9 +313,9 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 config.width,
                 config.height,
             )?;
+            let rays_per_set = config.width as usize * config.height as usize;
             let reference = match config.reference {
-                AccelKind::Auto if AccelKind::Embree.available() => AccelKind::Embree,
-                AccelKind::Auto => AccelKind::Brute,
+                AccelKind::Auto => auto_reference(view.triangles.len(), rays_per_set),
                 k => k,
             };
             eprintln!(

@@ -56,7 +56,7 @@ pub(super) struct BenchArgs {
     /// Ray/triangle test: fast or watertight.
     #[arg(long, default_value = "watertight", value_parser = parse_precision)]
     precision: Precision,
-    /// Reference for the agreement check (auto: embree when built in, else brute).
+    /// Reference for the agreement check (auto: brute on small scenes, embree on large ones).
     #[arg(long, default_value = "auto", value_parser = parse_accel)]
     reference: AccelKind,
     /// Animation time in seconds.
