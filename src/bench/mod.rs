@@ -19,6 +19,7 @@ use serde::Serialize;
 
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::geometry::Hit;
+pub use crate::render::camera::CameraChoice;
 pub use raysets::{RaySet, SetKind};
 pub use report::{render_csv, render_table};
 pub use view::{View, ViewKind};
@@ -48,27 +49,6 @@ pub enum BenchError {
         path: String,
         /// The OS error.
         source: std::io::Error,
-    },
-}
-
-/// Which camera a benchmark view uses.
-#[derive(Clone, Debug, PartialEq, Default)]
-pub enum CameraChoice {
-    /// glTF camera 0 when the scene has one, else a default view framing the bounds.
-    #[default]
-    Auto,
-    /// The scene's camera with this index.
-    Scene(usize),
-    /// A look-at camera.
-    LookAt {
-        /// Eye.
-        eye: [f64; 3],
-        /// Point looked at.
-        target: [f64; 3],
-        /// Up vector.
-        up: [f64; 3],
-        /// Vertical field of view in degrees.
-        fov: f64,
     },
 }
 

@@ -118,47 +118,29 @@ impl View {
         let room = room_around(&bounds);
         let half_room = [0, 1, 2].map(|k| 0.5 * (room.max[k] as f64 - room.min[k] as f64));
         let (camera, description) = match choice {
-            CameraChoice::Scene(i) => {
-                let cam = scene.cameras.get(*i).ok_or(
-                    crate::render::camera::CameraError::NoSuchCamera {
-                        index: *i,
-                        count: scene.cameras.len(),
-                    },
-                )?;
+            CameraChoice::Auto if scene.cameras.is_empty() && kind == ViewKind::Interior => {
+                // Inside the room, outside the model's box (0.9 of the room's half depth is
+                // past the model's face), looking at the model's centre: the model fills
+                // most of the frame and the walls the rest.
+                let eye = [0, 1, 2].map(|k| c[k] + INTERIOR_EYE[k] * half_room[k]);
                 (
-                    ViewCamera::from_scene(cam, aspect)?,
-                    format!("scene camera {i}"),
+                    ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], 60.0, aspect)?,
+                    "default interior view".to_string(),
                 )
             }
-            CameraChoice::LookAt {
-                eye,
-                target,
-                up,
-                fov,
-            } => (
-                ViewCamera::look_at(*eye, *target, *up, *fov, aspect)?,
-                format!("eye {eye:?} target {target:?} fov {fov}"),
-            ),
-            CameraChoice::Auto => match scene.cameras.first() {
-                Some(cam) => (
-                    ViewCamera::from_scene(cam, aspect)?,
-                    "scene camera 0".into(),
-                ),
-                None if kind == ViewKind::Interior => {
-                    // Inside the room, outside the model's box (0.9 of the room's half
-                    // depth is past the model's face), looking at the model's centre:
-                    // the model fills most of the frame and the walls the rest.
-                    let eye = [0, 1, 2].map(|k| c[k] + INTERIOR_EYE[k] * half_room[k]);
-                    (
-                        ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], 60.0, aspect)?,
-                        "default interior view".into(),
-                    )
-                }
-                None => (
-                    ViewCamera::framing(&bounds, aspect),
-                    "default framing view".into(),
-                ),
-            },
+            _ => {
+                let description = match choice {
+                    CameraChoice::Scene(i) => format!("scene camera {i}"),
+                    CameraChoice::LookAt {
+                        eye, target, fov, ..
+                    } => {
+                        format!("eye {eye:?} target {target:?} fov {fov}")
+                    }
+                    CameraChoice::Auto if scene.cameras.is_empty() => "default framing view".into(),
+                    CameraChoice::Auto => "scene camera 0".into(),
+                };
+                (ViewCamera::choose(choice, scene, aspect)?, description)
+            }
         };
         let mut triangles = scene.triangles.clone();
         if kind == ViewKind::Interior {
