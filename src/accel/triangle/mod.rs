@@ -125,13 +125,17 @@ impl<S: Simd> PreparedRay8<S> {
     /// Broadcasts `r`.
     #[inline(always)]
     pub fn new(s: S, r: &PreparedRay) -> Self {
+        // Spelled out rather than `array::map`, which is not always inlined and would then
+        // run the vector constructors outside the kernel's target features.
+        let v = |a: [f32; 3]| [s.splat_f8(a[0]), s.splat_f8(a[1]), s.splat_f8(a[2])];
+        let [kx, ky, kz] = r.k;
         PreparedRay8 {
-            org: r.org.map(|x| s.splat_f8(x)),
-            dir: r.dir.map(|x| s.splat_f8(x)),
-            org_k: r.k.map(|k| s.splat_f8(r.org[k])),
+            org: v(r.org),
+            dir: v(r.dir),
+            org_k: v([r.org[kx], r.org[ky], r.org[kz]]),
             tmin: s.splat_f8(r.tmin),
             k: r.k,
-            shear: r.shear.map(|x| s.splat_f8(x)),
+            shear: v(r.shear),
         }
     }
 }

@@ -126,7 +126,14 @@ impl TriTest for Watertight {
         let z = u.eq(zero) | v.eq(zero) | w.eq(zero);
         if z.any() {
             let mut uvw = [u.to_array(), v.to_array(), w.to_array()];
-            let xy = [ax, ay, bx, by, cx, cy].map(|q| q.to_array());
+            let xy = [
+                ax.to_array(),
+                ay.to_array(),
+                bx.to_array(),
+                by.to_array(),
+                cx.to_array(),
+                cy.to_array(),
+            ];
             fallback8(z.bitmask(), xy, &mut uvw);
             u = s.load_f8(&uvw[0]);
             v = s.load_f8(&uvw[1]);
