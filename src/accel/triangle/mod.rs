@@ -210,6 +210,26 @@ impl<T: TriTest> Tri8<T> {
         self.p.map(|pt| pt.map(|axis| axis[lane]))
     }
 
+    /// The contract's closest among the lanes set in `bits` (an 8-wide hit mask as
+    /// [`crate::simd::MaskV::bitmask`] gives it) with ray parameters `t`: smallest t, ties to
+    /// the lowest triangle id. Traversals that keep a running best `(t, id)` compare it
+    /// with this lane's `(t, ids[lane])` the same way (passing `tmax = best t` to
+    /// [`TriTest::intersect8`] keeps equal-t lanes, so a lower id can still win).
+    #[inline]
+    pub fn best_lane(&self, bits: u32, t: &[f32; 8]) -> Option<usize> {
+        let mut best: Option<usize> = None;
+        let mut rest = bits & 0xff;
+        while rest != 0 {
+            let lane = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            best = match best {
+                Some(b) if (t[b], self.ids[b]) <= (t[lane], self.ids[lane]) => Some(b),
+                _ => Some(lane),
+            };
+        }
+        best
+    }
+
     /// Number of real (non-padding) lanes.
     pub fn len(&self) -> usize {
         self.ids.iter().filter(|&&id| id != PAD_ID).count()
