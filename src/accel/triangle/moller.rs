@@ -8,7 +8,7 @@ use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::Triangle;
 use crate::simd::scalar::min_x86;
-use crate::simd::{FloatV, Simd};
+use crate::simd::{FloatV, MaskV, Simd};
 
 /// The Möller–Trumbore test (`precision=fast`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -74,10 +74,13 @@ impl TriTest for MollerTrumbore {
         let qy = sz * e1x - sx * e1z;
         let qz = sx * e1y - sy * e1x;
         let v = (dx * qx + dy * qy + dz * qz) * inv;
-        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
         let zero = s.splat_f8(0.0);
         // See the scalar test for why det == 0 needs no term of its own.
-        let hit = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0)) & t.ge(r.tmin) & t.le(tmax);
-        (hit, t)
+        let inside = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0));
+        if inside.none() {
+            return (inside, zero);
+        }
+        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+        (inside & t.ge(r.tmin) & t.le(tmax), t)
     }
 }
