@@ -612,3 +612,67 @@ fn empty_scenes_and_empty_batches() {
         assert_eq!(Brute::new(&[tri; 9], precision).bytes(), 2 * 320);
     }
 }
+
+/// Throughput of brute per backend and precision (not a correctness test):
+/// `cargo test --release --test brute_oracle -- --ignored --nocapture throughput`.
+/// Reports million rays/s and billion ray/triangle tests/s on one thread.
+#[test]
+#[ignore]
+fn throughput() {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let mut rng = Rng(99);
+    for n in [64usize, 1024, 8192] {
+        let tris: Vec<Triangle> = (0..n)
+            .map(|_| {
+                let c = rng.vec(10.0);
+                let s = 10.0 / (n as f32).sqrt();
+                Triangle {
+                    v: [add(c, rng.vec(s)), add(c, rng.vec(s)), add(c, rng.vec(s))],
+                }
+            })
+            .collect();
+        let rays: Vec<Ray> = (0..(20_000_000 / n).clamp(1000, 200_000))
+            .map(|_| {
+                let o = rng.vec(15.0);
+                let t = rng.vec(8.0);
+                Ray {
+                    org: o,
+                    tmin: 0.0,
+                    dir: [t[0] - o[0], t[1] - o[1], t[2] - o[2]],
+                    tmax: f32::INFINITY,
+                }
+            })
+            .collect();
+        for precision in [Precision::Watertight, Precision::Fast] {
+            for backend in Backend::supported() {
+                let b = Brute::with_backend(&tris, precision, backend);
+                let mut hits = vec![Hit::MISS; rays.len()];
+                let mut occ = vec![0u8; rays.len()];
+                for query in ["closest", "any", "occluded"] {
+                    let mut best = f64::INFINITY;
+                    for _ in 0..3 {
+                        let t0 = std::time::Instant::now();
+                        pool.install(|| match query {
+                            "closest" => b.trace(&rays, Query::Closest, &mut hits),
+                            "any" => b.trace(&rays, Query::Any, &mut hits),
+                            _ => b.occluded(&rays, &mut occ),
+                        });
+                        best = best.min(t0.elapsed().as_secs_f64());
+                    }
+                    let r = rays.len() as f64 / best;
+                    println!(
+                        "n={n:5} {:10} {:6} {:8} {:9.3} Mrays/s {:6.2} Gtests/s",
+                        precision.name(),
+                        backend.name(),
+                        query,
+                        r / 1e6,
+                        r * n as f64 / 1e9
+                    );
+                }
+            }
+        }
+    }
+}

@@ -133,6 +133,10 @@ fn closest<S: Simd, T: TriTest>(s: S, packs: &[Tri8<T>], ray: &Ray) -> Hit {
     let mut empty = s.mask8(0xff);
     for (i, pack) in packs.iter().enumerate() {
         let (hit, t) = T::intersect8(s, &r8, pack, tmax);
+        if hit.none() {
+            // The common case; lets the tests' early exits skip the update entirely.
+            continue;
+        }
         // Strictly smaller t only: an equal t in a later pack has a higher id.
         let better = hit & (t.lt(best_t) | empty);
         if better.any() {

@@ -7,7 +7,7 @@
 //! [`super::Avx2`] token (or from other vectors), and tokens are only created after
 //! `is_x86_feature_detected!` confirmed SSE4.1. Holding a value therefore proves that the
 //! intrinsics in its methods may run; that single argument is the `// SAFETY:` of the
-//! [`x!`] macro, which wraps each intrinsic call of this file.
+//! `x!` macro, which wraps each intrinsic call of this file.
 // Older compilers (the crate's rust-version) require `unsafe` around every intrinsic; newer
 // ones consider the SSE2 baseline ones safe and would flag those blocks as unused.
 #![allow(unused_unsafe)]

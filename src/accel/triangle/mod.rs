@@ -125,13 +125,17 @@ impl<S: Simd> PreparedRay8<S> {
     /// Broadcasts `r`.
     #[inline(always)]
     pub fn new(s: S, r: &PreparedRay) -> Self {
+        // Spelled out rather than `array::map`, which is not always inlined and would then
+        // run the vector constructors outside the kernel's target features.
+        let v = |a: [f32; 3]| [s.splat_f8(a[0]), s.splat_f8(a[1]), s.splat_f8(a[2])];
+        let [kx, ky, kz] = r.k;
         PreparedRay8 {
-            org: r.org.map(|x| s.splat_f8(x)),
-            dir: r.dir.map(|x| s.splat_f8(x)),
-            org_k: r.k.map(|k| s.splat_f8(r.org[k])),
+            org: v(r.org),
+            dir: v(r.dir),
+            org_k: v([r.org[kx], r.org[ky], r.org[kz]]),
             tmin: s.splat_f8(r.tmin),
             k: r.k,
-            shear: r.shear.map(|x| s.splat_f8(x)),
+            shear: v(r.shear),
         }
     }
 }
@@ -204,6 +208,26 @@ impl<T: TriTest> Tri8<T> {
     #[inline(always)]
     pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
         self.p.map(|pt| pt.map(|axis| axis[lane]))
+    }
+
+    /// The contract's closest among the lanes set in `bits` (an 8-wide hit mask as
+    /// [`crate::simd::MaskV::bitmask`] gives it) with ray parameters `t`: smallest t, ties to
+    /// the lowest triangle id. Traversals that keep a running best `(t, id)` compare it
+    /// with this lane's `(t, ids[lane])` the same way (passing `tmax = best t` to
+    /// [`TriTest::intersect8`] keeps equal-t lanes, so a lower id can still win).
+    #[inline]
+    pub fn best_lane(&self, bits: u32, t: &[f32; 8]) -> Option<usize> {
+        let mut best: Option<usize> = None;
+        let mut rest = bits & 0xff;
+        while rest != 0 {
+            let lane = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            best = match best {
+                Some(b) if (t[b], self.ids[b]) <= (t[lane], self.ids[lane]) => Some(b),
+                _ => Some(lane),
+            };
+        }
+        best
     }
 
     /// Number of real (non-padding) lanes.

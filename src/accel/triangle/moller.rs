@@ -7,7 +7,8 @@
 use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::Triangle;
-use crate::simd::{FloatV, Simd};
+use crate::simd::scalar::min_x86;
+use crate::simd::{FloatV, MaskV, Simd};
 
 /// The Möller–Trumbore test (`precision=fast`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -42,7 +43,10 @@ impl TriTest for MollerTrumbore {
         let qz = s[0] * e1[1] - s[1] * e1[0];
         let v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv;
         let t = (e2[0] * qx + e2[1] * qy + e2[2] * qz) * inv;
-        let hit = det != 0.0 && u >= 0.0 && v >= 0.0 && u + v <= 1.0 && t >= r.tmin && t <= tmax;
+        // No `det != 0` term: with det = ±0, inv = ±inf makes u and v ±inf or NaN, and no
+        // such pair passes `min(u, v) >= 0 && u + v <= 1` (a NaN u slips past the x86 min
+        // but not past the sum). Same form as the 8-wide test, so the two agree bit for bit.
+        let hit = min_x86(u, v) >= 0.0 && u + v <= 1.0 && t >= r.tmin && t <= tmax;
         hit.then_some(TriHit { t, u, v })
     }
 
@@ -70,14 +74,13 @@ impl TriTest for MollerTrumbore {
         let qy = sz * e1x - sx * e1z;
         let qz = sx * e1y - sy * e1x;
         let v = (dx * qx + dy * qy + dz * qz) * inv;
-        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
         let zero = s.splat_f8(0.0);
-        let hit = det.ne(zero)
-            & u.ge(zero)
-            & v.ge(zero)
-            & (u + v).le(s.splat_f8(1.0))
-            & t.ge(r.tmin)
-            & t.le(tmax);
-        (hit, t)
+        // See the scalar test for why det == 0 needs no term of its own.
+        let inside = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0));
+        if inside.none() {
+            return (inside, zero);
+        }
+        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+        (inside & t.ge(r.tmin) & t.le(tmax), t)
     }
 }

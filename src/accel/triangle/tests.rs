@@ -554,3 +554,17 @@ fn oracle_closest_breaks_ties_by_id() {
     assert_eq!(line.t, 4.0);
     assert!(line.u < 0.0 || line.v < 0.0 || line.u + line.v > 1.0);
 }
+
+#[test]
+fn best_lane_orders_by_t_then_id() {
+    let t = tri([[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let pack = Tri8::<Watertight>::pack(&[(9, t), (4, t), (7, t), (2, t)]);
+    let ts = [3.0, 1.0, 1.0, 2.0, 0.0, 0.0, 0.0, 0.0];
+    assert_eq!(pack.best_lane(0b1111, &ts), Some(1));
+    assert_eq!(pack.best_lane(0b1101, &ts), Some(2));
+    assert_eq!(pack.best_lane(0b1001, &ts), Some(3));
+    assert_eq!(pack.best_lane(0, &ts), None);
+    let eq = [5.0; 8];
+    assert_eq!(pack.best_lane(0b1111, &eq), Some(3));
+    assert_eq!(pack.best_lane(0b0101, &eq), Some(2));
+}

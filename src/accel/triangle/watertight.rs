@@ -10,6 +10,7 @@
 use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::Triangle;
+use crate::simd::scalar::{max_x86, min_x86};
 use crate::simd::{FloatV, MaskV, Simd};
 
 /// The watertight test (`precision=watertight`, the default).
@@ -82,7 +83,9 @@ impl TriTest for Watertight {
         if u == 0.0 || v == 0.0 || w == 0.0 {
             (u, v, w) = edges_f64(ax, ay, bx, by, cx, cy);
         }
-        let inside = (u >= 0.0 && v >= 0.0 && w >= 0.0) || (u <= 0.0 && v <= 0.0 && w <= 0.0);
+        // All >= 0 or all <= 0 (zeros count both ways): as min/max with the x86 rules, the
+        // form the 8-wide test uses (4 fewer vector operations than six compares).
+        let inside = min_x86(min_x86(u, v), w) >= 0.0 || max_x86(max_x86(u, v), w) <= 0.0;
         if !inside {
             return None;
         }
@@ -126,15 +129,20 @@ impl TriTest for Watertight {
         let z = u.eq(zero) | v.eq(zero) | w.eq(zero);
         if z.any() {
             let mut uvw = [u.to_array(), v.to_array(), w.to_array()];
-            let xy = [ax, ay, bx, by, cx, cy].map(|q| q.to_array());
+            let xy = [
+                ax.to_array(),
+                ay.to_array(),
+                bx.to_array(),
+                by.to_array(),
+                cx.to_array(),
+                cy.to_array(),
+            ];
             fallback8(z.bitmask(), xy, &mut uvw);
             u = s.load_f8(&uvw[0]);
             v = s.load_f8(&uvw[1]);
             w = s.load_f8(&uvw[2]);
         }
-        let pos = u.ge(zero) & v.ge(zero) & w.ge(zero);
-        let neg = u.le(zero) & v.le(zero) & w.le(zero);
-        let inside = pos | neg;
+        let inside = u.min(v).min(w).ge(zero) | u.max(v).max(w).le(zero);
         if inside.none() {
             return (inside, zero);
         }
