@@ -144,6 +144,8 @@ pub struct BuildMeasurement {
     pub seconds: f64,
     /// Bytes the accelerator holds.
     pub bytes: usize,
+    /// The accelerator's structure statistics, if it has a structure.
+    pub stats: Option<serde_json::Value>,
 }
 
 /// The results of one scene and view.
@@ -356,6 +358,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         threads,
                         seconds: median(&build_times),
                         bytes: accel.bytes(),
+                        stats: accel.stats(),
                     });
                     for set in &sets {
                         let mut hits = vec![Hit::MISS; set.rays.len()];

@@ -157,6 +157,18 @@ impl CoreArgs {
     }
 }
 
+/// Load options for `--time`, refusing a time that is not a finite number.
+fn load_options(time: Option<f64>) -> Result<crate::formats::LoadOptions, CliError> {
+    if let Some(t) = time {
+        if !t.is_finite() {
+            return Err(CliError::Usage(format!(
+                "--time {t} is not a finite number"
+            )));
+        }
+    }
+    Ok(crate::formats::LoadOptions { time })
+}
+
 /// How a command picks its camera.
 #[derive(clap::Args, Debug, Clone)]
 struct CameraArgs {
