@@ -590,13 +590,34 @@ fn load_glb(path: &std::path::Path) -> Vec<Triangle> {
     out
 }
 
-fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
-    let mut best = f64::INFINITY;
+/// CPU time of all threads of this process so far, in seconds (Linux schedstat), so that
+/// timings on a shared machine can be read as well as wall time.
+fn cpu_seconds() -> f64 {
+    let mut ns = 0u64;
+    if let Ok(dir) = std::fs::read_dir("/proc/self/task") {
+        for e in dir.flatten() {
+            if let Ok(s) = std::fs::read_to_string(e.path().join("schedstat")) {
+                ns += s
+                    .split_whitespace()
+                    .next()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(0);
+            }
+        }
+    }
+    ns as f64 * 1e-9
+}
+
+/// Best wall time and best CPU time over `reps` runs, and the last result.
+fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
+    let mut best = (f64::INFINITY, f64::INFINITY);
     let mut last = None;
     for _ in 0..reps {
+        let c0 = cpu_seconds();
         let t0 = std::time::Instant::now();
         let r = f();
-        best = best.min(t0.elapsed().as_secs_f64());
+        best.0 = best.0.min(t0.elapsed().as_secs_f64());
+        best.1 = best.1.min(cpu_seconds() - c0);
         last = Some(r);
     }
     (best, last.unwrap())
@@ -632,27 +653,50 @@ fn measure_build_times() {
         if !only.is_empty() && !name.contains(&only) {
             continue;
         }
+        // Raw positions (9 × f32 per triangle) for timing other builders on the same input.
+        if let Ok(dir) = std::env::var("RAYD_DUMP_DIR") {
+            let bytes: Vec<u8> = tris
+                .iter()
+                .flat_map(|t| t.v.iter().flatten().flat_map(|x| x.to_le_bytes()))
+                .collect();
+            std::fs::write(
+                std::path::Path::new(&dir).join(format!("{name}.raw")),
+                bytes,
+            )
+            .unwrap();
+        }
         for threads in [1, 2] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .unwrap();
             for q in QUALITIES {
+                let want = std::env::var("RAYD_QUALITY").unwrap_or_default();
+                if !want.is_empty() && want != q.name() {
+                    continue;
+                }
+                // RAYD_ALL=0 times only the MBVH8 build (the others once, for statistics).
+                let all = std::env::var("RAYD_ALL").map_or(true, |v| v != "0");
+                let r_other = if all { reps } else { 1 };
                 let (t8, m8) = pool.install(|| time_best(reps, || Mbvh::<8>::build(tris, q)));
-                let (t4, m4) = pool.install(|| time_best(reps, || Mbvh::<4>::build(tris, q)));
-                let (t2, b2) = pool.install(|| time_best(reps, || Bvh2::build(tris, q)));
+                let (t4, m4) = pool.install(|| time_best(r_other, || Mbvh::<4>::build(tris, q)));
+                let (t2, b2) = pool.install(|| time_best(r_other, || Bvh2::build(tris, q)));
                 let (tr, _) = pool.install(|| {
                     let mut m = m8.clone();
                     time_best(reps, move || m.refit(tris).unwrap())
                 });
                 println!(
-                    "{name:>22} {:>8} tris  threads={threads} {:>4}: mbvh8 {:7.1} ms  mbvh4 {:7.1} ms  bvh2 {:7.1} ms  refit8 {:6.1} ms",
+                    "{name:>22} {:>8} tris  threads={threads} {:>4}: wall/cpu ms  mbvh8 {:7.1} {:7.1}  mbvh4 {:7.1} {:7.1}  bvh2 {:7.1} {:7.1}  refit8 {:6.1} {:6.1}",
                     tris.len(),
                     q.name(),
-                    t8 * 1e3,
-                    t4 * 1e3,
-                    t2 * 1e3,
-                    tr * 1e3
+                    t8.0 * 1e3,
+                    t8.1 * 1e3,
+                    t4.0 * 1e3,
+                    t4.1 * 1e3,
+                    t2.0 * 1e3,
+                    t2.1 * 1e3,
+                    tr.0 * 1e3,
+                    tr.1 * 1e3
                 );
                 if threads == 1 {
                     for s in [m8.stats(), m4.stats(), b2.stats()] {
