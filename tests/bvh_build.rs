@@ -665,7 +665,12 @@ fn measure_build_times() {
             )
             .unwrap();
         }
-        for threads in [1, 2] {
+        let threads_list: Vec<usize> = std::env::var("RAYD_THREADS")
+            .unwrap_or_else(|_| "1,2".into())
+            .split(',')
+            .filter_map(|t| t.parse().ok())
+            .collect();
+        for &threads in &threads_list {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
@@ -698,7 +703,7 @@ fn measure_build_times() {
                     tr.0 * 1e3,
                     tr.1 * 1e3
                 );
-                if threads == 1 {
+                if threads == threads_list[0] {
                     for s in [m8.stats(), m4.stats(), b2.stats()] {
                         println!("    {}", serde_json::to_string(&s).unwrap());
                     }

@@ -9,7 +9,7 @@
 use rayon::prelude::*;
 
 use super::build::{
-    bounds_of, half_area, intersect, inv_half_area, CostModel, Range, Ref, Splitter, B4,
+    bounds_of, fmax, fmin, half_area, intersect, inv_half_area, CostModel, Range, Ref, Splitter, B4,
 };
 use super::sbvh;
 use crate::geometry::{Aabb, Triangle};
@@ -46,8 +46,8 @@ pub(crate) struct BinMap {
     pub scale: [f32; 4],
     /// Bin width (spatial splits: the planes are `lo + i·width`).
     pub width: [f32; 3],
-    /// Index of the last bin.
-    pub last: i32,
+    /// Index of the last bin, as a float.
+    pub last: f32,
 }
 
 impl BinMap {
@@ -55,7 +55,7 @@ impl BinMap {
     pub fn new(b: &Aabb, bins: usize, shrink: f64) -> BinMap {
         let mut m = BinMap {
             lo: [b.min[0], b.min[1], b.min[2], 0.0],
-            last: bins as i32 - 1,
+            last: (bins - 1) as f32,
             ..BinMap::default()
         };
         for a in 0..3 {
@@ -74,8 +74,7 @@ impl BinMap {
     /// Bin of coordinate `x` along `axis`, clamped to the valid bins.
     #[inline(always)]
     pub fn bin(&self, x: f32, axis: usize) -> usize {
-        let k = ((x - self.lo[axis]) * self.scale[axis]) as i32;
-        k.clamp(0, self.last) as usize
+        to_bin((x - self.lo[axis]) * self.scale[axis], self.last) as usize
     }
 
     /// Bins of a reference's centroid along the three axes: [`BinMap::bin`] of
@@ -83,9 +82,9 @@ impl BinMap {
     /// lane, so the results are identical).
     #[inline(always)]
     pub fn centroid_bins(&self, r: &Ref) -> [usize; 3] {
-        let k: [i32; 4] = std::array::from_fn(|j| {
+        let k: [u32; 4] = std::array::from_fn(|j| {
             let c = r.lo[j] * 0.5 + r.hi[j] * 0.5;
-            (((c - self.lo[j]) * self.scale[j]) as i32).clamp(0, self.last)
+            to_bin((c - self.lo[j]) * self.scale[j], self.last)
         });
         [k[0] as usize, k[1] as usize, k[2] as usize]
     }
@@ -95,6 +94,18 @@ impl BinMap {
     pub fn plane(&self, axis: usize, i: usize) -> f32 {
         self.lo[axis] + i as f32 * self.width[axis]
     }
+}
+
+/// Bin index of `f` (a coordinate in bin units from the lower edge): `⌊f⌋` clamped to
+/// `0..=last` (at most `BINS - 1`), NaN to 0. Computed as round-to-nearest of `f − 0.5` through the f32
+/// mantissa (adding 2^23 leaves the rounded integer in the low mantissa bits) instead of
+/// a saturating float-to-int cast: this stays in vector registers when the compiler
+/// does four lanes at once, and it is a monotone function of `f`, which is all binning
+/// and partitioning need to agree.
+#[inline(always)]
+fn to_bin(f: f32, last: f32) -> u32 {
+    let f = fmin(fmax(f - 0.5, 0.0), last);
+    (f + 8_388_608.0).to_bits() & (BINS as u32 - 1)
 }
 
 /// Object bins: per-bin boxes and reference counts along each axis.
@@ -153,9 +164,9 @@ impl ObjectBins {
     fn add_one(&mut self, r: &Ref, map: &BinMap) {
         let b = r.b4();
         let k = map.centroid_bins(r);
-        for a in 0..3 {
-            self.boxes[a][k[a]].grow(&b);
-            self.count[a][k[a]] += 1;
+        for (a, &k) in k.iter().enumerate() {
+            self.boxes[a][k].grow(&b);
+            self.count[a][k] += 1;
         }
     }
 }
@@ -196,7 +207,38 @@ pub(crate) const SMALL: usize = 32;
 
 /// The best split of a small range by an exact sweep: (cost S, left mask), where bit `i`
 /// of the mask says that the reference at position `i` goes left.
-fn exact_plan(refs: &[Ref], inv_area: f64, cost: &CostModel) -> Option<(f64, u32)> {
+fn exact_plan(refs: &[Ref], bounds: &Aabb, inv_area: f64, cost: &CostModel) -> Option<(f64, u32)> {
+    if f32_areas(bounds) {
+        exact_sweep::<true>(refs, inv_area, cost)
+    } else {
+        exact_sweep::<false>(refs, inv_area, cost)
+    }
+}
+
+/// Whether areas of boxes inside `bounds` may be computed in f32: its size keeps them far
+/// from overflow and underflow (nearly always; fewer instructions than f64). Otherwise
+/// they are computed in f64.
+fn f32_areas(bounds: &Aabb) -> bool {
+    let e = bounds.extent();
+    (1e-9..1e9).contains(&e[0].max(e[1]).max(e[2]))
+}
+
+/// Half the area of a non-empty box, in f32 (`F32`) or f64.
+#[inline(always)]
+fn area_of<const F32: bool>(b: &B4) -> f64 {
+    if F32 {
+        let e: [f32; 4] = std::array::from_fn(|k| b.hi[k] - b.lo[k]);
+        (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) as f64
+    } else {
+        half_area4(b)
+    }
+}
+
+fn exact_sweep<const F32: bool>(
+    refs: &[Ref],
+    inv_area: f64,
+    cost: &CostModel,
+) -> Option<(f64, u32)> {
     let n = refs.len();
     debug_assert!((2..=SMALL).contains(&n));
     let mut best: Option<(f64, usize, usize)> = None;
@@ -213,12 +255,12 @@ fn exact_plan(refs: &[Ref], inv_area: f64, cost: &CostModel) -> Option<(f64, u32
         let mut acc = B4::EMPTY;
         for k in (1..n).rev() {
             acc.grow(&at(keys[k]));
-            r_area[k] = half_area4(&acc);
+            r_area[k] = area_of::<F32>(&acc);
         }
         acc = B4::EMPTY;
         for k in 1..n {
             acc.grow(&at(keys[k - 1]));
-            let s = (half_area4(&acc) * cost.blocks(k as u32)
+            let s = (area_of::<F32>(&acc) * cost.blocks(k as u32)
                 + r_area[k] * cost.blocks((n - k) as u32))
                 * inv_area;
             if best.map_or(true, |b| s < b.0) {
@@ -259,8 +301,24 @@ pub(crate) struct SweepBest {
 }
 
 /// Sweeps the bins of one axis: the split between bins `i-1` and `i` has `Σ enter[..i]`
-/// references on the left and `Σ exit[i..]` on the right.
+/// references on the left and `Σ exit[i..]` on the right. `bounds` is the range's box
+/// (it picks f32 or f64 areas, as [`exact_plan`] does).
 pub(crate) fn sweep(
+    boxes: &[B4],
+    enter: &[u32],
+    exit: &[u32],
+    bounds: &Aabb,
+    inv_area: f64,
+    cost: &CostModel,
+) -> Option<SweepBest> {
+    if f32_areas(bounds) {
+        sweep_with::<true>(boxes, enter, exit, inv_area, cost)
+    } else {
+        sweep_with::<false>(boxes, enter, exit, inv_area, cost)
+    }
+}
+
+fn sweep_with<const F32: bool>(
     boxes: &[B4],
     enter: &[u32],
     exit: &[u32],
@@ -276,8 +334,10 @@ pub(crate) fn sweep(
     for i in (1..bins).rev() {
         acc.grow(&boxes[i]);
         n += exit[i];
-        r_area[i] = half_area4(&acc);
         r_n[i] = n;
+        if n > 0 {
+            r_area[i] = area_of::<F32>(&acc);
+        }
     }
     let mut best: Option<SweepBest> = None;
     acc = B4::EMPTY;
@@ -288,7 +348,8 @@ pub(crate) fn sweep(
         if n == 0 || r_n[i] == 0 {
             continue;
         }
-        let s = (half_area4(&acc) * cost.blocks(n) + r_area[i] * cost.blocks(r_n[i])) * inv_area;
+        let s =
+            (area_of::<F32>(&acc) * cost.blocks(n) + r_area[i] * cost.blocks(r_n[i])) * inv_area;
         if best.map_or(true, |b| s < b.s) {
             best = Some(SweepBest {
                 bin: i,
@@ -414,7 +475,7 @@ impl Splitter for SahSplitter<'_> {
         }
         let inv_area = inv_half_area(&r.bounds);
         if refs.len() <= SMALL {
-            return match exact_plan(refs, inv_area, cost) {
+            return match exact_plan(refs, &r.bounds, inv_area, cost) {
                 Some((s, mask)) => (SahPlan::Exact { mask }, s),
                 None => (SahPlan::Median, FORCED_ONLY),
             };
@@ -443,7 +504,14 @@ impl Splitter for SahSplitter<'_> {
                 if map.scale[a] == 0.0 {
                     continue;
                 }
-                if let Some(s) = sweep(&b.boxes[a], &b.count[a], &b.count[a], inv_area, cost) {
+                if let Some(s) = sweep(
+                    &b.boxes[a],
+                    &b.count[a],
+                    &b.count[a],
+                    &r.bounds,
+                    inv_area,
+                    cost,
+                ) {
                     if best.map_or(true, |(_, o)| s.s < o.s) {
                         best = Some((a, s));
                     }
@@ -486,7 +554,8 @@ impl Splitter for SahSplitter<'_> {
         let (mut nl, mut nr) = match *plan {
             SahPlan::Object { axis, bin, map } => {
                 let (a, b) = (axis as usize, bin as usize);
-                let (nl, bx) = partition_bounds(&mut refs[..n], |x| map.bin(x.centroid(a), a) < b);
+                let (nl, bx) =
+                    partition_bounds::<true>(&mut refs[..n], |x| map.bin(x.centroid(a), a) < b);
                 bounds = Some(bx);
                 (nl, n - nl)
             }
@@ -512,7 +581,7 @@ impl Splitter for SahSplitter<'_> {
                 for (i, r) in refs[..n].iter_mut().enumerate() {
                     r.set_aux((mask >> i) & 1);
                 }
-                let (nl, bx) = partition_bounds(&mut refs[..n], |x| x.aux() == 1);
+                let (nl, bx) = partition_bounds::<false>(&mut refs[..n], |x| x.aux() == 1);
                 bounds = Some(bx);
                 (nl, n - nl)
             }
@@ -535,13 +604,20 @@ type SideBounds = [(Aabb, Aabb); 2];
 
 /// [`partition`] that also returns the boxes and centroid boxes of both sides, gathered
 /// in the same pass (each reference is looked at once).
-fn partition_bounds(refs: &mut [Ref], left: impl Fn(&Ref) -> bool) -> (usize, SideBounds) {
+/// `CENT = false` skips the centroid boxes (left empty): ranges of at most [`SMALL`]
+/// references never bin, so their halves do not need them.
+fn partition_bounds<const CENT: bool>(
+    refs: &mut [Ref],
+    left: impl Fn(&Ref) -> bool,
+) -> (usize, SideBounds) {
     let mut acc = [[B4::EMPTY; 2]; 2];
     let mut add = |side: usize, r: &Ref| {
         let b = r.b4();
         acc[side][0].grow(&b);
-        let c: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
-        acc[side][1].grow(&B4::point(c));
+        if CENT {
+            let c: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
+            acc[side][1].grow(&B4::point(c));
+        }
     };
     let mut i = 0;
     let mut j = refs.len();
@@ -669,6 +745,7 @@ mod tests {
             &bins.boxes[0],
             &bins.count[0],
             &bins.count[0],
+            &bounds,
             inv_half_area(&bounds),
             &cost,
         )

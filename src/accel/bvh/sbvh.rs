@@ -211,6 +211,7 @@ pub(crate) fn spatial_plan(
             &bins.boxes[a],
             &bins.enter[a],
             &bins.exit[a],
+            &r.bounds,
             inv_area,
             cost,
         ) {
