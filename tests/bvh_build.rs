@@ -222,6 +222,44 @@ fn huge_and_tiny_coordinates() {
 }
 
 #[test]
+fn depth_stays_bounded_on_adversarial_input() {
+    // Triangles in a geometric progression: every SAH split peels off a few far ones,
+    // which would make a tree as deep as the scene is long without the depth guard.
+    let mut tris: Vec<Triangle> = (0..4000)
+        .map(|i| {
+            let x = 1.01f32.powi(i);
+            tri([x, 0.0, 0.0], [x * 1.001, 0.0, 0.0], [x, x * 0.001, 0.0])
+        })
+        .collect();
+    // Doubling distances across the whole exponent range.
+    tris.extend((-120..120).map(|i| {
+        let x = 2f32.powi(i);
+        tri(
+            [x, 5.0, 0.0],
+            [x * 1.001, 5.0, 0.0],
+            [x, 5.0 + x * 0.25, 0.0],
+        )
+    }));
+    for q in QUALITIES {
+        let limit = rayd::accel::bvh::DEPTH_LIMIT as usize + 32;
+        let m = Mbvh8::build(&tris, q);
+        m.validate(&tris).unwrap();
+        assert!(
+            m.stats().max_depth <= limit,
+            "{q:?}: {}",
+            m.stats().max_depth
+        );
+        let b = Bvh2::build(&tris, q);
+        b.validate(&tris).unwrap();
+        assert!(
+            b.stats().max_depth <= limit,
+            "{q:?}: {}",
+            b.stats().max_depth
+        );
+    }
+}
+
+#[test]
 fn leaves_respect_the_size_limit_and_sah_stops_early() {
     // A dense cluster of 1000 tiny triangles: every leaf has at most 2N of them.
     let tris = soup(1000, 1.0, 0.001, 11);

@@ -720,7 +720,12 @@ fn make_refs(tris: &[Triangle]) -> (Vec<Ref>, Vec<u32>, Aabb, Aabb) {
                 }
                 let r = o.next().expect("counted");
                 *r = Ref {
-                    lo: [tb.lo[0], tb.lo[1], tb.lo[2], f32::from_bits((base + i) as u32)],
+                    lo: [
+                        tb.lo[0],
+                        tb.lo[1],
+                        tb.lo[2],
+                        f32::from_bits((base + i) as u32),
+                    ],
                     hi: [tb.hi[0], tb.hi[1], tb.hi[2], 0.0],
                 };
                 b.grow(&tb);
