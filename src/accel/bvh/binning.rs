@@ -203,7 +203,11 @@ pub(crate) fn half_area4(b: &B4) -> f64 {
 /// Ranges of at most this many references are split by an exact SAH sweep over their
 /// sorted centroids instead of bins: cheaper than clearing and sweeping 3 × 32 bins, and
 /// exact. Most candidates are this small.
-pub(crate) const SMALL: usize = 32;
+pub(crate) const SMALL: usize = 24;
+
+/// Ranges of at most this many references (but more than [`SMALL`]) are binned with
+/// `BINS / 2` bins: clearing and sweeping bins costs as much as binning them there.
+const FEW: usize = 128;
 
 /// The best split of a small range by an exact sweep: (cost S, left mask), where bit `i`
 /// of the mask says that the reference at position `i` goes left.
@@ -480,7 +484,8 @@ impl Splitter for SahSplitter<'_> {
                 None => (SahPlan::Median, FORCED_ONLY),
             };
         }
-        let map = BinMap::new(&r.info.0, BINS, 1.0 - 1e-6);
+        let bins = if refs.len() <= FEW { BINS / 2 } else { BINS };
+        let map = BinMap::new(&r.info.0, bins, 1.0 - 1e-6);
         let mut best: Option<(usize, SweepBest)> = None;
         let mut overlap = f64::INFINITY;
         if map.scale.iter().any(|&s| s > 0.0) {
@@ -505,9 +510,9 @@ impl Splitter for SahSplitter<'_> {
                     continue;
                 }
                 if let Some(s) = sweep(
-                    &b.boxes[a],
-                    &b.count[a],
-                    &b.count[a],
+                    &b.boxes[a][..bins],
+                    &b.count[a][..bins],
+                    &b.count[a][..bins],
                     &r.bounds,
                     inv_area,
                     cost,
@@ -518,7 +523,7 @@ impl Splitter for SahSplitter<'_> {
                 }
             }
             if let Some((a, s)) = best {
-                let (l, rr) = halves(&b.boxes[a], s.bin);
+                let (l, rr) = halves(&b.boxes[a][..bins], s.bin);
                 overlap = half_area(&intersect(&l, &rr));
             }
         }
