@@ -661,6 +661,49 @@ fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
     (best, last.unwrap())
 }
 
+/// Every invariant on the real scenes (needs `RAYD_SCENES`; slow: `validate` walks and
+/// samples everything).
+#[test]
+#[ignore]
+fn real_scenes_keep_every_invariant() {
+    let Ok(dir) = std::env::var("RAYD_SCENES") else {
+        eprintln!("RAYD_SCENES not set: nothing to check");
+        return;
+    };
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|e| e == "glb"))
+        .collect();
+    files.sort();
+    for p in files {
+        // Draco-compressed files hold no plain positions; the throwaway reader skips them.
+        let Ok(tris) = std::panic::catch_unwind(|| load_glb(&p)) else {
+            continue;
+        };
+        for q in QUALITIES {
+            let name = p.file_name().unwrap().to_string_lossy();
+            Mbvh8::build(&tris, q)
+                .validate(&tris)
+                .unwrap_or_else(|e| panic!("{name} mbvh8 {q:?}: {e}"));
+            Mbvh4::build(&tris, q)
+                .validate(&tris)
+                .unwrap_or_else(|e| panic!("{name} mbvh4 {q:?}: {e}"));
+            Bvh2::build(&tris, q)
+                .validate(&tris)
+                .unwrap_or_else(|e| panic!("{name} bvh2 {q:?}: {e}"));
+            let moved = deform(&tris, 0.25);
+            let mut m = Mbvh8::build(&tris, q);
+            if m.refit(&moved).is_ok() {
+                m.validate(&moved)
+                    .unwrap_or_else(|e| panic!("{name} mbvh8 refit {q:?}: {e}"));
+            }
+        }
+        eprintln!("ok {} ({} triangles)", p.display(), tris.len());
+    }
+}
+
 #[test]
 #[ignore]
 fn measure_build_times() {

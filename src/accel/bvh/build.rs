@@ -472,8 +472,8 @@ impl<S: Splitter, const N: usize> Builder<'_, S, N> {
         c.ready = true;
     }
 
-    /// Finds the split of the candidate at `kids[i]`, whose references lie in `refs`
-    /// (first slot `base`).
+    /// Finds the split of candidate `c`, whose references lie somewhere in `refs` (whose
+    /// first slot is `base`).
     fn eval_in(&self, refs: &[Ref], base: u32, c: &mut CandOf<S>, depth: u32) {
         let slice = &refs[(c.r.begin - base) as usize..(c.r.end - base) as usize];
         self.eval(slice, c, depth);
