@@ -6,6 +6,7 @@
 //! caller bounds the threads by installing a pool.
 
 pub mod brute;
+pub mod bvh;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod triangle;
