@@ -22,7 +22,7 @@ use super::slab::{Lanes, SlabTest};
 use super::stack::{self, sort_top, sort_top3, sort_top4, Stack};
 use crate::accel::triangle::{PreparedRay, PreparedRay8, Tri8, TriTest};
 use crate::geometry::{Hit, Ray};
-use crate::simd::{FloatV, MaskV, Simd};
+use crate::simd::{self, FloatV, MaskV, Simd};
 
 /// The hit record of lane `lane` of `pack` from the scalar test (bit-identical to the
 /// 8-wide test that found it).
@@ -49,6 +49,18 @@ fn next_bit(mask: &mut u32) -> usize {
     let i = mask.trailing_zeros() as usize;
     *mask &= mask.wrapping_sub(1);
     i
+}
+
+/// Prefetches what child `id` points at (a node, or a leaf's first pack).
+#[inline(always)]
+fn prefetch_child<const N: usize, T>(tree: &TravTree<N, T>, id: i32) {
+    if id >= 0 {
+        if let Some(n) = tree.nodes.get(id as usize) {
+            simd::prefetch(n);
+        }
+    } else if let Some(p) = tree.packs.get(leaf_range(id).0) {
+        simd::prefetch(p);
+    }
 }
 
 /// The closest hit of `ray` (contract §2).
@@ -94,12 +106,15 @@ where
                 let i1 = next_bit(&mut mask);
                 let (k0, k1) = (key(i0), key(i1));
                 if mask == 0 {
-                    stack[sp] = k0.max(k1);
+                    let far = k0.max(k1);
+                    prefetch_child(tree, stack::id(far));
+                    stack[sp] = far;
                     sp += 1;
                     cur = stack::id(k0.min(k1));
                     continue;
                 }
                 // 3 hits: push all three, sort.
+                let base_of_push = sp;
                 let i2 = next_bit(&mut mask);
                 stack[sp] = k0;
                 stack[sp + 1] = k1;
@@ -127,6 +142,9 @@ where
                 }
                 sp -= 1;
                 cur = stack::id(stack[sp]);
+                for &k in &stack[base_of_push..sp] {
+                    prefetch_child(tree, stack::id(k));
+                }
                 continue;
             }
         } else {
