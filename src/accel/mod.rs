@@ -9,6 +9,8 @@ pub mod brute;
 pub mod bvh;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod mbvh;
+pub mod packet;
 pub mod triangle;
 
 use crate::geometry::{Hit, Ray, Triangle};
@@ -20,19 +22,35 @@ pub enum AccelKind {
     Auto,
     /// Every ray against every triangle: the reference.
     Brute,
+    /// Multi-BVH, 8 wide, single-ray ordered traversal (Áfra 2013).
+    Mbvh8,
+    /// Multi-BVH, 4 wide, single-ray ordered traversal.
+    Mbvh4,
+    /// Binary BVH with skip pointers, packets of 4 rays (Geimer & Müller).
+    Bvh2,
     /// Intel Embree 3 (cargo feature `embree`): the peer.
     Embree,
 }
 
 impl AccelKind {
     /// Every kind, in the order they are listed to users.
-    pub const ALL: [AccelKind; 3] = [AccelKind::Auto, AccelKind::Brute, AccelKind::Embree];
+    pub const ALL: [AccelKind; 6] = [
+        AccelKind::Auto,
+        AccelKind::Brute,
+        AccelKind::Mbvh8,
+        AccelKind::Mbvh4,
+        AccelKind::Bvh2,
+        AccelKind::Embree,
+    ];
 
     /// The contract's name.
     pub fn name(self) -> &'static str {
         match self {
             AccelKind::Auto => "auto",
             AccelKind::Brute => "brute",
+            AccelKind::Mbvh8 => "mbvh8",
+            AccelKind::Mbvh4 => "mbvh4",
+            AccelKind::Bvh2 => "bvh2",
             AccelKind::Embree => "embree",
         }
     }
@@ -47,10 +65,11 @@ impl AccelKind {
         self != AccelKind::Embree || cfg!(feature = "embree")
     }
 
-    /// What `auto` becomes for a job of `rays` rays over `triangles` triangles.
+    /// What `auto` becomes for a job of `rays` rays over `triangles` triangles: `mbvh8`,
+    /// the fastest core on incoherent and coherent rays alike (until DACRT exists).
     pub fn resolve(self, _rays: usize, _triangles: usize) -> AccelKind {
         match self {
-            AccelKind::Auto => AccelKind::Brute,
+            AccelKind::Auto => AccelKind::Mbvh8,
             k => k,
         }
     }
@@ -187,9 +206,12 @@ pub fn build(
     options: &BuildOptions,
 ) -> Result<Box<dyn Intersector>, AccelError> {
     match kind {
-        AccelKind::Auto | AccelKind::Brute => {
-            Ok(Box::new(brute::Brute::new(triangles, options.precision)))
+        AccelKind::Brute => Ok(Box::new(brute::Brute::new(triangles, options.precision))),
+        AccelKind::Auto | AccelKind::Mbvh8 => {
+            Ok(Box::new(mbvh::Mbvh8Core::build(triangles, options)))
         }
+        AccelKind::Mbvh4 => Ok(Box::new(mbvh::Mbvh4Core::build(triangles, options))),
+        AccelKind::Bvh2 => Ok(Box::new(packet::Bvh2Packet::build(triangles, options))),
         #[cfg(feature = "embree")]
         AccelKind::Embree => Ok(Box::new(embree::Embree::new(triangles, options)?)),
         #[cfg(not(feature = "embree"))]

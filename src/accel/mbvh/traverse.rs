@@ -1,0 +1,244 @@
+//! Single-ray ordered MBVH traversal (Áfra 2013 §4.1), generic over the node width, the
+//! triangle test and the SIMD backend.
+//!
+//! A ray is tested against all N child boxes of a node at once; the hit children are
+//! handled by the number of hits: 1 → continue with it; 2 → push the farther, continue
+//! with the nearer; 3 and 4 → push all, sort the top of the stack with a sorting network,
+//! pop the nearest; 5–N → push all, insertion sort, pop. Stack entries carry their entry
+//! distance, and a popped entry farther than the closest hit so far is skipped.
+//!
+//! Ties (contract: equal t → lowest id): leaves are tested with `tmax = best t` (closed,
+//! so equal-t lanes come back) and a lane wins on `(t, id) < (best t, best id)`; boxes are
+//! pruned only when their entry distance is *strictly* beyond the best t (`tn <= tfar` in
+//! the slab test, `dist > best` to skip on pop), so an equal-t triangle with a lower id in
+//! a later leaf is still found. With the conservative slab test of [`super::ray`] this
+//! makes the closest hit bit-identical to `brute`'s.
+//!
+//! `any` pushes the hit children unsorted and stops at the first triangle hit.
+
+use super::layout::{leaf_range, TravTree};
+use super::ray::BoxRay;
+use super::slab::{Lanes, SlabTest};
+use super::stack::{self, sort_top, sort_top3, sort_top4, Stack};
+use crate::accel::triangle::{PreparedRay, PreparedRay8, Tri8, TriTest};
+use crate::geometry::{Hit, Ray};
+use crate::simd::{self, FloatV, MaskV, Simd};
+
+/// The hit record of lane `lane` of `pack` from the scalar test (bit-identical to the
+/// 8-wide test that found it).
+#[inline]
+pub(crate) fn fields<T: TriTest>(r: &PreparedRay, pack: &Tri8<T>, lane: usize) -> Hit {
+    match T::intersect1(r, pack, lane, r.tmax) {
+        Some(h) => Hit {
+            t: h.t,
+            prim: pack.ids[lane],
+            u: h.u,
+            v: h.v,
+        },
+        None => {
+            debug_assert!(false, "scalar and 8-wide tests disagree");
+            Hit::MISS
+        }
+    }
+}
+
+/// Index of the lowest set bit of a non-zero mask, and the mask without it (Áfra's
+/// BSF + BTC).
+#[inline(always)]
+fn next_bit(mask: &mut u32) -> usize {
+    let i = mask.trailing_zeros() as usize;
+    *mask &= mask.wrapping_sub(1);
+    i
+}
+
+/// Prefetches what child `id` points at (a node, or a leaf's first pack).
+#[inline(always)]
+fn prefetch_child<const N: usize, T>(tree: &TravTree<N, T>, id: i32) {
+    if id >= 0 {
+        if let Some(n) = tree.nodes.get(id as usize) {
+            simd::prefetch(n);
+        }
+    } else if let Some(p) = tree.packs.get(leaf_range(id).0) {
+        simd::prefetch(p);
+    }
+}
+
+/// The closest hit of `ray` (contract §2).
+#[inline(always)]
+pub fn closest<S: Simd, T: TriTest, const N: usize>(
+    s: S,
+    tree: &TravTree<N, T>,
+    ray: &Ray,
+    stack: &mut Stack,
+) -> Hit
+where
+    Lanes<N>: SlabTest<N>,
+{
+    let r = PreparedRay::new(ray);
+    if r.is_empty() {
+        return Hit::MISS;
+    }
+    let br = BoxRay::new(&r, tree.scale);
+    let vr = <Lanes<N> as SlabTest<N>>::ray(s, &br);
+    let r8 = PreparedRay8::new(s, &r);
+    let nodes = &tree.nodes[..];
+    let packs = &tree.packs[..];
+    let mut best_t = br.tmax;
+    let mut best_id = u32::MAX;
+    let mut best_at: Option<(usize, usize)> = None;
+    let mut tmax8 = s.splat_f8(best_t);
+    let mut sp = 0usize;
+    let mut cur: i32 = 0;
+    'trav: loop {
+        if cur >= 0 {
+            let node = &nodes[cur as usize];
+            let (mut mask, dist) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, best_t);
+            if mask != 0 {
+                let child = |i: usize| node.child[i & (N - 1)];
+                let key = |i: usize| stack::key(dist[i & 7], child(i));
+                // 1 hit: continue with it.
+                let i0 = next_bit(&mut mask);
+                if mask == 0 {
+                    cur = child(i0);
+                    continue;
+                }
+                // 2 hits: push the farther one.
+                let i1 = next_bit(&mut mask);
+                let (k0, k1) = (key(i0), key(i1));
+                if mask == 0 {
+                    let far = k0.max(k1);
+                    prefetch_child(tree, stack::id(far));
+                    stack[sp] = far;
+                    sp += 1;
+                    cur = stack::id(k0.min(k1));
+                    continue;
+                }
+                // 3 hits: push all three, sort.
+                let base_of_push = sp;
+                let i2 = next_bit(&mut mask);
+                stack[sp] = k0;
+                stack[sp + 1] = k1;
+                stack[sp + 2] = key(i2);
+                sp += 3;
+                if mask == 0 {
+                    sort_top3(&mut stack[sp - 3..sp]);
+                } else {
+                    // 4 hits.
+                    let i3 = next_bit(&mut mask);
+                    stack[sp] = key(i3);
+                    sp += 1;
+                    if mask == 0 {
+                        sort_top4(&mut stack[sp - 4..sp]);
+                    } else {
+                        // 5–N hits.
+                        let base = sp - 4;
+                        while mask != 0 {
+                            let i = next_bit(&mut mask);
+                            stack[sp] = key(i);
+                            sp += 1;
+                        }
+                        sort_top(&mut stack[base..sp]);
+                    }
+                }
+                sp -= 1;
+                cur = stack::id(stack[sp]);
+                for &k in &stack[base_of_push..sp] {
+                    prefetch_child(tree, stack::id(k));
+                }
+                continue;
+            }
+        } else {
+            let (first, count) = leaf_range(cur);
+            for (k, pack) in packs[first..first + count].iter().enumerate() {
+                let (m, t) = T::intersect8(s, &r8, pack, tmax8);
+                let mut bits = m.bitmask();
+                if bits == 0 {
+                    continue;
+                }
+                let ts = t.to_array();
+                while bits != 0 {
+                    let lane = next_bit(&mut bits) & 7;
+                    let (t, id) = (ts[lane], pack.ids[lane]);
+                    // `t <= best_t` held when the pack was tested, but an earlier lane of
+                    // this pack may have lowered best_t since.
+                    if t < best_t || (t == best_t && id < best_id) {
+                        best_t = t;
+                        best_id = id;
+                        best_at = Some((first + k, lane));
+                    }
+                }
+                tmax8 = s.splat_f8(best_t);
+            }
+        }
+        // Pop the nearest entry that is not beyond the closest hit.
+        let limit = best_t.to_bits();
+        loop {
+            if sp == 0 {
+                break 'trav;
+            }
+            sp -= 1;
+            let k = stack[sp];
+            if stack::dist_bits(k) <= limit {
+                cur = stack::id(k);
+                break;
+            }
+        }
+    }
+    match best_at {
+        Some((p, lane)) => fields(&r, &packs[p], lane),
+        None => Hit::MISS,
+    }
+}
+
+/// Some hit of `ray` in its interval: `(prepared ray, pack, lane)` of the first one found.
+#[inline(always)]
+pub fn any<S: Simd, T: TriTest, const N: usize>(
+    s: S,
+    tree: &TravTree<N, T>,
+    ray: &Ray,
+    stack: &mut Stack,
+) -> Option<(PreparedRay, usize, usize)>
+where
+    Lanes<N>: SlabTest<N>,
+{
+    let r = PreparedRay::new(ray);
+    if r.is_empty() {
+        return None;
+    }
+    let br = BoxRay::new(&r, tree.scale);
+    let vr = <Lanes<N> as SlabTest<N>>::ray(s, &br);
+    let r8 = PreparedRay8::new(s, &r);
+    let nodes = &tree.nodes[..];
+    let packs = &tree.packs[..];
+    let tmax = br.tmax;
+    let tmax8 = s.splat_f8(tmax);
+    let mut sp = 0usize;
+    let mut cur: i32 = 0;
+    loop {
+        if cur >= 0 {
+            let node = &nodes[cur as usize];
+            let (mut mask, _) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, tmax);
+            if mask != 0 {
+                cur = node.child[next_bit(&mut mask) & (N - 1)];
+                while mask != 0 {
+                    stack[sp] = stack::key(0.0, node.child[next_bit(&mut mask) & (N - 1)]);
+                    sp += 1;
+                }
+                continue;
+            }
+        } else {
+            let (first, count) = leaf_range(cur);
+            for (k, pack) in packs[first..first + count].iter().enumerate() {
+                let (m, _) = T::intersect8(s, &r8, pack, tmax8);
+                if m.any() {
+                    return Some((r, first + k, m.bitmask().trailing_zeros() as usize));
+                }
+            }
+        }
+        if sp == 0 {
+            return None;
+        }
+        sp -= 1;
+        cur = stack::id(stack[sp]);
+    }
+}

@@ -1,0 +1,154 @@
+//! Stackless traversal of a skip-pointer BVH by packets of 4 rays (Geimer & Müller §3.3).
+//!
+//! The 4 rays of a packet are the lanes of 4-wide vectors. Nodes are visited in array
+//! (depth-first) order; a node is entered when its box is hit by any active ray within
+//! that ray's `[tmin, best t]`, and otherwise skipped with its skip pointer. At a leaf,
+//! each ray that hit the leaf's box is tested against the leaf's 8-wide pack with the same
+//! test and tie rule as every other core (`tmax = best t`, `(t, id)` order), so the closest
+//! hit is bit-identical to `brute`'s. `any` retires a ray at its first hit and stops when
+//! none is left.
+//!
+//! Rays in a packet may point into different octants, so the slab test orders each axis
+//! pair with `min`/`max` per lane rather than by a per-ray near-plane choice. The boxes are
+//! grown exactly as in the MBVH cores (see `mbvh::ray`); NaN slab distances (0·∞) are
+//! ignored by operand order, which only ever enlarges an interval.
+
+use super::layout::PacketTree;
+use crate::accel::mbvh::ray::BoxRay;
+use crate::accel::mbvh::traverse::fields;
+use crate::accel::triangle::{PreparedRay, PreparedRay8, TriTest};
+use crate::accel::Query;
+use crate::geometry::{Hit, Ray};
+use crate::simd::{FloatV, MaskV, Simd};
+
+/// Rays per packet.
+pub const PACKET: usize = 4;
+
+/// Traces one packet of 1 to 4 rays and writes their hits (or, with `occluded`, 0/1 per
+/// ray; then `query` is ignored and treated as `any`).
+#[inline(always)]
+pub fn packet<S: Simd, T: TriTest>(
+    s: S,
+    tree: &PacketTree<T>,
+    rays: &[Ray],
+    query: Query,
+    hits: Option<&mut [Hit]>,
+    occluded: Option<&mut [u8]>,
+) {
+    debug_assert!(!rays.is_empty() && rays.len() <= PACKET);
+    let ray_at = |i: usize| PreparedRay::new(rays.get(i).unwrap_or(&Ray::EMPTY));
+    let pr = [ray_at(0), ray_at(1), ray_at(2), ray_at(3)];
+    let br = [
+        BoxRay::new(&pr[0], tree.scale),
+        BoxRay::new(&pr[1], tree.scale),
+        BoxRay::new(&pr[2], tree.scale),
+        BoxRay::new(&pr[3], tree.scale),
+    ];
+    let mut active = 0u32;
+    for (i, r) in pr.iter().enumerate() {
+        if i < rays.len() && !r.is_empty() {
+            active |= 1 << i;
+        }
+    }
+    let first_only = occluded.is_some() || query == Query::Any;
+    let mut best_t = [br[0].tmax, br[1].tmax, br[2].tmax, br[3].tmax];
+    let mut best_id = [u32::MAX; PACKET];
+    let mut best_at: [Option<(usize, usize)>; PACKET] = [None; PACKET];
+    if active != 0 {
+        // Scalar gathers; the vector loads stay in the kernel's own code.
+        let col = |f: fn(&BoxRay) -> f32| [f(&br[0]), f(&br[1]), f(&br[2]), f(&br[3])];
+        let inv = [
+            s.load_f4(&col(|b| b.inv[0])),
+            s.load_f4(&col(|b| b.inv[1])),
+            s.load_f4(&col(|b| b.inv[2])),
+        ];
+        let lo = [
+            s.load_f4(&col(|b| b.org_lo[0])),
+            s.load_f4(&col(|b| b.org_lo[1])),
+            s.load_f4(&col(|b| b.org_lo[2])),
+        ];
+        let hi = [
+            s.load_f4(&col(|b| b.org_hi[0])),
+            s.load_f4(&col(|b| b.org_hi[1])),
+            s.load_f4(&col(|b| b.org_hi[2])),
+        ];
+        let tmin = s.load_f4(&col(|b| b.tmin));
+        let r8 = [
+            PreparedRay8::new(s, &pr[0]),
+            PreparedRay8::new(s, &pr[1]),
+            PreparedRay8::new(s, &pr[2]),
+            PreparedRay8::new(s, &pr[3]),
+        ];
+        let mut tfar = s.load_f4(&best_t);
+        let nodes = &tree.nodes[..];
+        let packs = &tree.packs[..];
+        let mut i = 0usize;
+        while let Some(node) = nodes.get(i) {
+            let slab = |k: usize| {
+                let a = (s.splat_f4(node.min[k]) - lo[k]) * inv[k];
+                let b = (s.splat_f4(node.max[k]) - hi[k]) * inv[k];
+                (a.min(b), a.max(b))
+            };
+            let (nx, fx) = slab(0);
+            let (ny, fy) = slab(1);
+            let (nz, fz) = slab(2);
+            let tn = nx.max(ny.max(nz.max(tmin)));
+            let tf = fx.min(fy.min(fz.min(tfar)));
+            let mut hit = tn.le(tf).bitmask() & active;
+            if hit == 0 {
+                i = node.skip as usize;
+                continue;
+            }
+            i += 1;
+            if node.pack == 0 {
+                continue;
+            }
+            let pack = &packs[node.pack as usize - 1];
+            let mut changed = false;
+            while hit != 0 {
+                let lane = hit.trailing_zeros() as usize & 3;
+                hit &= hit - 1;
+                let (m, t) = T::intersect8(s, &r8[lane], pack, s.splat_f8(best_t[lane]));
+                let mut bits = m.bitmask();
+                if bits == 0 {
+                    continue;
+                }
+                if first_only {
+                    best_at[lane] = Some((node.pack as usize - 1, bits.trailing_zeros() as usize));
+                    active &= !(1 << lane);
+                    continue;
+                }
+                let ts = t.to_array();
+                while bits != 0 {
+                    let j = bits.trailing_zeros() as usize & 7;
+                    bits &= bits - 1;
+                    let (t, id) = (ts[j], pack.ids[j]);
+                    if t < best_t[lane] || (t == best_t[lane] && id < best_id[lane]) {
+                        best_t[lane] = t;
+                        best_id[lane] = id;
+                        best_at[lane] = Some((node.pack as usize - 1, j));
+                        changed = true;
+                    }
+                }
+            }
+            if active == 0 {
+                break;
+            }
+            if changed {
+                tfar = s.load_f4(&best_t);
+            }
+        }
+    }
+    if let Some(out) = occluded {
+        for (o, at) in out.iter_mut().zip(&best_at) {
+            *o = u8::from(at.is_some());
+        }
+    } else if let Some(hits) = hits {
+        for ((h, at), r) in hits.iter_mut().zip(&best_at).zip(&pr) {
+            *h = match *at {
+                Some((p, lane)) => fields(r, &tree.packs[p], lane),
+                None => Hit::MISS,
+            };
+        }
+    }
+}
