@@ -6,6 +6,7 @@
 //! caller bounds the threads by installing a pool.
 
 pub mod brute;
+pub mod dacrt;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod triangle;
@@ -21,11 +22,21 @@ pub enum AccelKind {
     Brute,
     /// Intel Embree 3 (cargo feature `embree`): the peer.
     Embree,
+    /// Divide-and-conquer ray tracing, no acceleration structure (Áfra 2012).
+    Dacrt,
+    /// DACRT with ray sampling (Nabata et al. 2013).
+    DacrtSampled,
 }
 
 impl AccelKind {
     /// Every kind, in the order they are listed to users.
-    pub const ALL: [AccelKind; 3] = [AccelKind::Auto, AccelKind::Brute, AccelKind::Embree];
+    pub const ALL: [AccelKind; 5] = [
+        AccelKind::Auto,
+        AccelKind::Brute,
+        AccelKind::Embree,
+        AccelKind::Dacrt,
+        AccelKind::DacrtSampled,
+    ];
 
     /// The contract's name.
     pub fn name(self) -> &'static str {
@@ -33,6 +44,8 @@ impl AccelKind {
             AccelKind::Auto => "auto",
             AccelKind::Brute => "brute",
             AccelKind::Embree => "embree",
+            AccelKind::Dacrt => "dacrt",
+            AccelKind::DacrtSampled => "dacrt-sampled",
         }
     }
 
@@ -183,6 +196,11 @@ pub fn build(
         AccelKind::Auto | AccelKind::Brute => {
             Ok(Box::new(brute::Brute::new(triangles, options.precision)))
         }
+        AccelKind::Dacrt => Ok(Box::new(dacrt::Dacrt::new(triangles, options.precision))),
+        AccelKind::DacrtSampled => Ok(Box::new(dacrt::Dacrt::sampled(
+            triangles,
+            options.precision,
+        ))),
         #[cfg(feature = "embree")]
         AccelKind::Embree => Ok(Box::new(embree::Embree::new(triangles, options)?)),
         #[cfg(not(feature = "embree"))]

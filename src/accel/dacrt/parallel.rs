@@ -1,0 +1,395 @@
+//! Several threads on one trace, without giving each thread its own copy of all rays (the
+//! papers' "naive" multithreading, which repeats the partitioning per thread).
+//!
+//! Two mechanisms, chosen by the number of active rays of a step:
+//!
+//! - **Data-parallel steps** (many rays: the top of the recursion, where there are few
+//!   nodes but each is huge). Filtering is an in-place parallel partition: both halves of
+//!   the range are filtered recursively in parallel, then the inactive block of the left
+//!   half and the active block of the right half trade places (only the shorter of the two
+//!   moves). Big triangle ranges are binned and partitioned the same way, and leaves with
+//!   many rays test them in parallel chunks whose hits are written back afterwards. No
+//!   copies, and front-to-back culling is exactly that of one thread.
+//! - **Forks** (fewer rays: the many smaller subtrees below). A fork runs the first child
+//!   on a *copy* of its filtered rays with a task-local hit table while the second child
+//!   stays stealable. If another thread steals it, the thief builds its own copy from the
+//!   parent's rays — which nobody writes during the fork, since the first child works on its
+//!   copy — and the two children run at once. If nobody steals it, it runs afterwards on the
+//!   parent's array in place, as in one thread, after the first child's hits are merged
+//!   back into the parent's records, so its filtering still culls with them. A child's
+//!   local table holds, per copied ray, the parent's slot in `v`: merging is one pass over
+//!   the copy. Forks are made only when the thread has no stealable work already, and the
+//!   records they copy are bounded by a budget, which is what keeps memory near the papers'
+//!   formula. (Whether a thread has stealable work is tracked per thread in
+//!   [`Ctx::pending`], counting its forks whose second child has not started.)
+
+use std::sync::atomic::Ordering::Relaxed;
+
+use rayon::prelude::*;
+
+use crate::geometry::Hit;
+
+use super::leaf::{leaf, merge_slot, LeafTest, Sink};
+use super::rays::{filter, filter_copy, FilterBox, RayRec, TMIN_FLAG};
+use super::split::{middle_plane, partition_acc, Acc, Bins, Node, Parts};
+use super::stats::{lap, Stats};
+use super::traverse::{step, visit, Child, Ctx};
+use super::tris::TriBox;
+
+/// Swaps `v[a..a+k]` with `v[b..b+k]` (`a + k <= b`), in parallel when longer than `grain`.
+fn swap_blocks<T: Send>(v: &mut [T], a: usize, b: usize, k: usize, grain: usize) {
+    let (lo, hi) = v.split_at_mut(b);
+    let (x, y) = (&mut lo[a..a + k], &mut hi[..k]);
+    if k < grain {
+        x.swap_with_slice(y);
+    } else {
+        x.par_chunks_mut(grain)
+            .zip(y.par_chunks_mut(grain))
+            .for_each(|(p, q)| p.swap_with_slice(q));
+    }
+}
+
+/// After both halves of `v` (split at `mid`) were partitioned (`a` and `c` selected
+/// elements first in each), brings all selected elements to the front: the inactive tail
+/// of the left half and the active head of the right half trade places, moving only the
+/// shorter of the two.
+fn join_halves<T: Send>(v: &mut [T], mid: usize, a: usize, c: usize, grain: usize) {
+    let k = (mid - a).min(c);
+    if k > 0 {
+        swap_blocks(v, a, mid + c - k, k, grain);
+    }
+}
+
+/// [`filter`] on several threads, in pieces of at least `grain` rays.
+pub fn filter_par(rays: &mut [RayRec], b: &FilterBox, grain: usize) -> usize {
+    if rays.len() <= grain.max(16) {
+        return filter(rays, b);
+    }
+    let mid = (rays.len() / 2) & !7;
+    let (l, r) = rays.split_at_mut(mid);
+    let (a, c) = rayon::join(|| filter_par(l, b, grain), || filter_par(r, b, grain));
+    join_halves(rays, mid, a, c, grain);
+    a + c
+}
+
+/// [`partition_acc`] on several threads.
+fn partition_par(
+    boxes: &[TriBox],
+    ids: &mut [u32],
+    left: &(impl Fn(&TriBox) -> bool + Sync),
+    grain: usize,
+) -> (usize, Acc, Acc) {
+    if ids.len() <= grain.max(2) {
+        return partition_acc(boxes, ids, left);
+    }
+    let mid = ids.len() / 2;
+    let (l, r) = ids.split_at_mut(mid);
+    let ((a, mut al, mut ar), (c, cl, cr)) = rayon::join(
+        || partition_par(boxes, l, left, grain),
+        || partition_par(boxes, r, left, grain),
+    );
+    join_halves(ids, mid, a, c, grain);
+    al.merge(&cl);
+    ar.merge(&cr);
+    (a + c, al, ar)
+}
+
+fn parts(ids_len: usize, (mid, l, r): (usize, Acc, Acc)) -> Option<Parts> {
+    (mid > 0 && mid < ids_len).then(|| Parts {
+        mid,
+        left: l.node(),
+        right: r.node(),
+    })
+}
+
+/// [`super::split::middle`] on several threads.
+pub fn middle_par(boxes: &[TriBox], ids: &mut [u32], node: &Node, grain: usize) -> Option<Parts> {
+    let (axis, pivot, le) = middle_plane(node)?;
+    let n = ids.len();
+    let r = if le {
+        partition_par(boxes, ids, &|b: &TriBox| b.centroid(axis) <= pivot, grain)
+    } else {
+        partition_par(boxes, ids, &|b: &TriBox| b.centroid(axis) < pivot, grain)
+    };
+    parts(n, r)
+}
+
+/// [`Bins::new`] on several threads.
+pub fn bins_par(boxes: &[TriBox], ids: &[u32], node: &Node, grain: usize) -> Option<Bins> {
+    let empty = Bins::empty(node)?;
+    let bins = ids
+        .par_chunks(grain.max(1))
+        .map(|c| {
+            let mut b = Bins::empty(node).expect("same node");
+            b.fill(boxes, c);
+            b
+        })
+        .reduce_with(|mut a, b| {
+            a.merge(&b);
+            a
+        });
+    Some(bins.unwrap_or(empty))
+}
+
+/// [`Bins::partition`] on several threads.
+pub fn partition_bins_par(
+    bins: &Bins,
+    boxes: &[TriBox],
+    ids: &mut [u32],
+    j: usize,
+    grain: usize,
+) -> Parts {
+    let (mid, l, r) = partition_par(boxes, ids, &|b: &TriBox| bins.bin(b) <= j, grain);
+    Parts {
+        mid,
+        left: l.node(),
+        right: r.node(),
+    }
+}
+
+/// A sink that reads the table but defers its writes: what parallel chunks of one leaf use.
+struct Deferred<'t> {
+    table: &'t [Hit],
+    out: Vec<(u32, f32, u32)>,
+}
+
+impl Sink for Deferred<'_> {
+    fn tmin(&self, index: usize) -> f32 {
+        self.table[index].u
+    }
+
+    fn offer(&mut self, index: usize, t: f32, prim: u32, _any: bool) -> f32 {
+        self.out.push((index as u32, t, prim));
+        t
+    }
+}
+
+/// A leaf with many rays: chunks of rays in parallel, hits merged into `table` afterwards.
+pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut [Hit], ids: &[u32]) {
+    let shared: &[Hit] = table;
+    let outs: Vec<Vec<(u32, f32, u32)>> = rays
+        .par_chunks_mut(ctx.opts.parallel.grain)
+        .map(|chunk| {
+            let mut d = Deferred {
+                table: shared,
+                out: Vec::new(),
+            };
+            leaf::<T, _>(ctx.tris, chunk, &mut d, ids, ctx.any);
+            d.out
+        })
+        .collect();
+    for (index, t, prim) in outs.into_iter().flatten() {
+        merge_slot(&mut table[index as usize], t, prim, ctx.any);
+    }
+}
+
+/// Whether a step with `n` active rays should fork its children.
+pub fn should_fork(ctx: &Ctx, n: usize) -> bool {
+    let p = &ctx.opts.parallel;
+    n >= p.fork_min_rays
+        && n < p.data_min_rays
+        && ctx.budget.load(Relaxed) >= n as isize
+        && rayon::current_thread_index()
+            .and_then(|i| ctx.pending.get(i))
+            .is_some_and(|c| c.load(Relaxed) == 0)
+}
+
+/// Takes `n` records from the fork budget, or says there is not enough.
+fn reserve(ctx: &Ctx, n: usize) -> bool {
+    let n = n as isize;
+    if ctx.budget.fetch_sub(n, Relaxed) >= n {
+        true
+    } else {
+        ctx.budget.fetch_add(n, Relaxed);
+        false
+    }
+}
+
+fn release(ctx: &Ctx, n: usize) {
+    ctx.budget.fetch_add(n as isize, Relaxed);
+}
+
+/// A child's rays copied out of its parent's, with a local hit table whose `v` field holds
+/// the position of each copied ray in the parent's array.
+struct Copy {
+    rays: Vec<RayRec>,
+    table: Vec<Hit>,
+}
+
+impl Copy {
+    /// Copies the rays of `parent` that `child` needs (all of them when it skips filtering).
+    fn make(ctx: &Ctx, parent: &[RayRec], ptable: &[Hit], child: &Child) -> Copy {
+        let t0 = ctx.clock();
+        let mut rays = Vec::with_capacity(parent.len());
+        let mut link = Vec::with_capacity(parent.len());
+        if child.skip {
+            for (i, r) in parent.iter().enumerate() {
+                let mut r = *r;
+                r.slot = (r.slot & TMIN_FLAG) | i as u32;
+                rays.push(r);
+                link.push(i as u32);
+            }
+        } else {
+            filter_copy(
+                parent,
+                &FilterBox::new(&child.node.bounds),
+                &mut rays,
+                &mut link,
+            );
+        }
+        let table = rays
+            .iter()
+            .zip(&link)
+            .map(|(r, &p)| Hit {
+                t: r.tmax,
+                prim: u32::MAX,
+                u: ptable[parent[p as usize].index()].u,
+                v: f32::from_bits(p),
+            })
+            .collect();
+        if let Some(s) = ctx.stats {
+            Stats::add(&s.box_tests, parent.len() as u64);
+            lap(&s.filter_ns, t0);
+        }
+        Copy { rays, table }
+    }
+
+    /// Runs the child on the copy.
+    fn run<T: LeafTest>(&mut self, ctx: &Ctx, child: Child, depth: u32) {
+        if !self.rays.is_empty() {
+            step::<T>(
+                ctx,
+                &mut self.rays,
+                &mut self.table,
+                child.ids,
+                &child.node,
+                depth + 1,
+            );
+        }
+    }
+
+    /// Writes the copy's hits back into the parent's table and records.
+    fn merge(&self, ctx: &Ctx, parent: &mut [RayRec], ptable: &mut [Hit]) {
+        let t0 = ctx.clock();
+        for h in &self.table {
+            if h.prim == u32::MAX {
+                continue;
+            }
+            let r = &mut parent[h.v.to_bits() as usize];
+            let t = merge_slot(&mut ptable[r.index()], h.t, h.prim, ctx.any);
+            r.tmax = if ctx.any { f32::NEG_INFINITY } else { t };
+        }
+        if let Some(s) = ctx.stats {
+            lap(&s.merge_ns, t0);
+        }
+    }
+}
+
+/// Runs `first` and `second` as a fork (see the module docs).
+pub fn fork<T: LeafTest>(
+    ctx: &Ctx,
+    rays: &mut [RayRec],
+    table: &mut [Hit],
+    first: Child,
+    second: Child,
+    depth: u32,
+) {
+    let n = rays.len();
+    if !reserve(ctx, n) {
+        visit::<T>(ctx, rays, table, first, depth);
+        visit::<T>(ctx, rays, table, second, depth);
+        return;
+    }
+    let mut a = Copy::make(ctx, rays, table, &first);
+    release(ctx, n - a.rays.len());
+    let held_a = a.rays.len();
+    let (prays, ptable): (&[RayRec], &[Hit]) = (rays, table);
+    // This thread now has stealable work until the second child starts somewhere.
+    let pending = rayon::current_thread_index().and_then(|i| ctx.pending.get(i));
+    if let Some(p) = pending {
+        p.fetch_add(1, Relaxed);
+    }
+    let ((), b) = rayon::join_context(
+        |_| a.run::<T>(ctx, first, depth),
+        |c| {
+            if let Some(p) = pending {
+                p.fetch_sub(1, Relaxed);
+            }
+            if !c.migrated() || !reserve(ctx, n) {
+                return Err(second);
+            }
+            let mut b = Copy::make(ctx, prays, ptable, &second);
+            release(ctx, n - b.rays.len());
+            b.run::<T>(ctx, second, depth);
+            Ok(b)
+        },
+    );
+    a.merge(ctx, rays, table);
+    release(ctx, held_a);
+    drop(a);
+    match b {
+        Ok(b) => {
+            if let Some(s) = ctx.stats {
+                Stats::add(&s.forks_stolen, 1);
+            }
+            b.merge(ctx, rays, table);
+            release(ctx, b.rays.len());
+        }
+        Err(second) => {
+            if let Some(s) = ctx.stats {
+                Stats::add(&s.forks_local, 1);
+            }
+            visit::<T>(ctx, rays, table, second, depth);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn join_halves_brings_selected_to_front() {
+        for (n, mid) in [(10, 5), (40_000, 20_000), (7, 3)] {
+            for (a, c) in [(0, 0), (2, 1), (mid, n - mid), (1, n - mid), (mid, 0)] {
+                // Encode "selected" as true.
+                let mut v: Vec<bool> = (0..n)
+                    .map(|i| if i < mid { i < a } else { i - mid < c })
+                    .collect();
+                join_halves(&mut v, mid, a, c, 1000);
+                assert!(v[..a + c].iter().all(|&x| x), "{n} {mid} {a} {c}");
+                assert!(v[a + c..].iter().all(|&x| !x));
+            }
+        }
+    }
+
+    #[test]
+    fn parallel_partition_matches_sequential_counts() {
+        let boxes: Vec<TriBox> = (0..100_000)
+            .map(|i| {
+                let x = ((i * 7919) % 1000) as f32;
+                TriBox {
+                    min: [x, 0.0, 0.0, 0.0],
+                    max: [x + 1.0, 1.0, 1.0, 0.0],
+                }
+            })
+            .collect();
+        let mut ids: Vec<u32> = (0..boxes.len() as u32).collect();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let (mid, l, r) =
+            pool.install(|| partition_par(&boxes, &mut ids, &|b: &TriBox| b.min[0] < 500.0, 1000));
+        assert_eq!(mid, 50_000);
+        assert!(ids[..mid].iter().all(|&i| boxes[i as usize].min[0] < 500.0));
+        assert!(ids[mid..]
+            .iter()
+            .all(|&i| boxes[i as usize].min[0] >= 500.0));
+        assert_eq!(l.node().bounds.max[0], 500.0);
+        assert_eq!(r.node().bounds.min[0], 500.0);
+        let mut sorted = ids.clone();
+        sorted.sort();
+        assert!(sorted.iter().enumerate().all(|(i, &x)| i as u32 == x));
+    }
+}
