@@ -8,6 +8,9 @@
 //! `unsafe` is denied everywhere except the SIMD layer and the FFI of the Embree peer.
 #![deny(unsafe_code)]
 #![warn(missing_docs)]
+// Geometry code walks the three axes of several arrays at once; an index loop says that
+// more plainly than zipped iterators.
+#![allow(clippy::needless_range_loop)]
 
 pub mod accel;
 pub mod bench;

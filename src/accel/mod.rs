@@ -184,6 +184,12 @@ pub trait Intersector: Send + Sync {
 
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
+
+    /// Structure statistics (node counts, SIMD utilisation, bytes per triangle…) for
+    /// `rayd info --accel` and `rayd bench`; `None` for cores without a structure.
+    fn stats(&self) -> Option<serde_json::Value> {
+        None
+    }
 }
 
 /// Builds the accelerator `kind` over `triangles` (`auto` must be resolved first).

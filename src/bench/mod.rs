@@ -19,6 +19,7 @@ use serde::Serialize;
 
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::geometry::Hit;
+pub use crate::render::camera::CameraChoice;
 pub use raysets::{RaySet, SetKind};
 pub use report::{render_csv, render_table};
 pub use view::{View, ViewKind};
@@ -51,27 +52,6 @@ pub enum BenchError {
     },
 }
 
-/// Which camera a benchmark view uses.
-#[derive(Clone, Debug, PartialEq, Default)]
-pub enum CameraChoice {
-    /// glTF camera 0 when the scene has one, else a default view framing the bounds.
-    #[default]
-    Auto,
-    /// The scene's camera with this index.
-    Scene(usize),
-    /// A look-at camera.
-    LookAt {
-        /// Eye.
-        eye: [f64; 3],
-        /// Point looked at.
-        target: [f64; 3],
-        /// Up vector.
-        up: [f64; 3],
-        /// Vertical field of view in degrees.
-        fov: f64,
-    },
-}
-
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
@@ -99,7 +79,7 @@ pub struct BenchConfig {
     pub build: BuildQuality,
     /// Ray/triangle test.
     pub precision: Precision,
-    /// Reference accelerator (`auto`: embree when built in, else brute).
+    /// Reference accelerator (`auto`: brute on small scenes, embree on large ones).
     pub reference: AccelKind,
     /// Animation time.
     pub time: Option<f64>,
@@ -164,6 +144,8 @@ pub struct BuildMeasurement {
     pub seconds: f64,
     /// Bytes the accelerator holds.
     pub bytes: usize,
+    /// The accelerator's structure statistics, if it has a structure.
+    pub stats: Option<serde_json::Value>,
 }
 
 /// The results of one scene and view.
@@ -266,6 +248,16 @@ pub fn same_answer(a: &Hit, b: &Hit) -> bool {
     (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30)
 }
 
+/// Brute force is the reference while it stays affordable (about 2·10^9 ray/triangle tests
+/// a set); beyond that, Embree where it is built in.
+fn auto_reference(triangles: usize, rays_per_set: usize) -> AccelKind {
+    if (triangles as f64) * (rays_per_set as f64) <= 2e9 || !AccelKind::Embree.available() {
+        AccelKind::Brute
+    } else {
+        AccelKind::Embree
+    }
+}
+
 /// Runs the benchmark; progress goes to stderr.
 pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
     if config.scenes.is_empty() {
@@ -303,9 +295,9 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 config.width,
                 config.height,
             )?;
+            let rays_per_set = config.width as usize * config.height as usize;
             let reference = match config.reference {
-                AccelKind::Auto if AccelKind::Embree.available() => AccelKind::Embree,
-                AccelKind::Auto => AccelKind::Brute,
+                AccelKind::Auto => auto_reference(view.triangles.len(), rays_per_set),
                 k => k,
             };
             eprintln!(
@@ -366,6 +358,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         threads,
                         seconds: median(&build_times),
                         bytes: accel.bytes(),
+                        stats: accel.stats(),
                     });
                     for set in &sets {
                         let mut hits = vec![Hit::MISS; set.rays.len()];

@@ -82,6 +82,25 @@ pub fn box_triangles(b: &Aabb) -> Vec<Triangle> {
         .collect()
 }
 
+/// Where the default interior camera stands, in units of the room's half extents from the
+/// centre.
+const INTERIOR_EYE: [f64; 3] = [0.45, 0.3, 0.9];
+
+/// The room of an interior view: the scene's box grown by a quarter of its extent on every
+/// side (flat axes by a quarter of the largest extent), so that bounces go back and forth
+/// between the model and walls close to it, as in an architectural interior.
+pub fn room_around(bounds: &Aabb) -> Aabb {
+    let e = bounds.extent();
+    let largest = e[0].max(e[1]).max(e[2]).max(1e-3);
+    let mut room = *bounds;
+    for k in 0..3 {
+        let grow = 0.25 * e[k].max(0.25 * largest);
+        room.min[k] -= grow;
+        room.max[k] += grow;
+    }
+    room
+}
+
 impl View {
     /// Makes the view of `scene`.
     pub fn new(
@@ -96,67 +115,42 @@ impl View {
             .ok_or_else(|| BenchError::Config("the scene has no triangles to benchmark".into()))?;
         let aspect = width as f64 / height as f64;
         let c = bounds.center().map(f64::from);
-        let radius = (0.5 * bounds.diagonal() as f64).max(1e-3);
+        let room = room_around(&bounds);
+        let half_room = [0, 1, 2].map(|k| 0.5 * (room.max[k] as f64 - room.min[k] as f64));
         let (camera, description) = match choice {
-            CameraChoice::Scene(i) => {
-                let cam = scene.cameras.get(*i).ok_or(
-                    crate::render::camera::CameraError::NoSuchCamera {
-                        index: *i,
-                        count: scene.cameras.len(),
-                    },
-                )?;
+            CameraChoice::Auto if scene.cameras.is_empty() && kind == ViewKind::Interior => {
+                // Inside the room, outside the model's box (0.9 of the room's half depth is
+                // past the model's face), looking at the model's centre: the model fills
+                // most of the frame and the walls the rest.
+                let eye = [0, 1, 2].map(|k| c[k] + INTERIOR_EYE[k] * half_room[k]);
                 (
-                    ViewCamera::from_scene(cam, aspect)?,
-                    format!("scene camera {i}"),
+                    ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], 60.0, aspect)?,
+                    "default interior view".to_string(),
                 )
             }
-            CameraChoice::LookAt {
-                eye,
-                target,
-                up,
-                fov,
-            } => (
-                ViewCamera::look_at(*eye, *target, *up, *fov, aspect)?,
-                format!("eye {eye:?} target {target:?} fov {fov}"),
-            ),
-            CameraChoice::Auto => match scene.cameras.first() {
-                Some(cam) => (
-                    ViewCamera::from_scene(cam, aspect)?,
-                    "scene camera 0".into(),
-                ),
-                None if kind == ViewKind::Interior => {
-                    // Close enough that the model fills most of the frame, inside the room.
-                    let d: [f64; 3] = [0.55, 0.35, 1.0];
-                    let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                    let dist = 1.6 * radius;
-                    let eye = [
-                        c[0] + d[0] / l * dist,
-                        c[1] + d[1] / l * dist,
-                        c[2] + d[2] / l * dist,
-                    ];
-                    (
-                        ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], 60.0, aspect)?,
-                        "default interior view".into(),
-                    )
-                }
-                None => (
-                    ViewCamera::framing(&bounds, aspect),
-                    "default framing view".into(),
-                ),
-            },
+            _ => {
+                let description = match choice {
+                    CameraChoice::Scene(i) => format!("scene camera {i}"),
+                    CameraChoice::LookAt {
+                        eye, target, fov, ..
+                    } => {
+                        format!("eye {eye:?} target {target:?} fov {fov}")
+                    }
+                    CameraChoice::Auto if scene.cameras.is_empty() => "default framing view".into(),
+                    CameraChoice::Auto => "scene camera 0".into(),
+                };
+                (ViewCamera::choose(choice, scene, aspect)?, description)
+            }
         };
         let mut triangles = scene.triangles.clone();
         if kind == ViewKind::Interior {
-            // A cube around the scene, grown to hold the eye with a margin.
-            let h = 2.0 * radius;
-            let mut room = Aabb {
-                min: [(c[0] - h) as f32, (c[1] - h) as f32, (c[2] - h) as f32],
-                max: [(c[0] + h) as f32, (c[1] + h) as f32, (c[2] + h) as f32],
-            };
+            // A scene camera may stand outside the room: grow the room to hold it.
+            let mut room = room;
             let eye = camera.eye();
+            let margin = 0.05 * bounds.diagonal() as f64;
             for (k, e) in eye.iter().enumerate() {
-                room.min[k] = room.min[k].min((e - 0.5 * radius) as f32);
-                room.max[k] = room.max[k].max((e + 0.5 * radius) as f32);
+                room.min[k] = room.min[k].min((e - margin) as f32);
+                room.max[k] = room.max[k].max((e + margin) as f32);
             }
             triangles.extend(box_triangles(&room));
         }

@@ -2,9 +2,9 @@
 //! every command's result does; the table goes to stderr (or to stdout with
 //! `--format table`, CSV with `--format csv`).
 
-use super::{parse_accel, parse_build, parse_precision, parse_vec3, CliError, PathArg};
+use super::{parse_accel, parse_build, parse_precision, CameraArgs, CliError, PathArg};
 use crate::accel::{AccelKind, BuildQuality, Precision};
-use crate::bench::{BenchConfig, CameraChoice, SetKind, ViewKind};
+use crate::bench::{BenchConfig, SetKind, ViewKind};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct BenchArgs {
@@ -26,21 +26,8 @@ pub(super) struct BenchArgs {
     /// Image height.
     #[arg(long, default_value_t = 768)]
     height: u32,
-    /// Use the scene's camera with this index (default: camera 0 if any, else a default view).
-    #[arg(long, conflicts_with = "eye")]
-    camera: Option<usize>,
-    /// Eye x,y,z of a look-at camera (with --target).
-    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
-    eye: Option<[f64; 3]>,
-    /// Target x,y,z of a look-at camera.
-    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
-    target: Option<[f64; 3]>,
-    /// Up vector of a look-at camera.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
-    up: [f64; 3],
-    /// Vertical field of view of a look-at camera, degrees.
-    #[arg(long, default_value_t = 60.0)]
-    fov: f64,
+    #[command(flatten)]
+    camera: CameraArgs,
     /// Timed runs per measurement (median reported).
     #[arg(long, default_value_t = 5)]
     runs: usize,
@@ -56,7 +43,7 @@ pub(super) struct BenchArgs {
     /// Ray/triangle test: fast or watertight.
     #[arg(long, default_value = "watertight", value_parser = parse_precision)]
     precision: Precision,
-    /// Reference for the agreement check (auto: embree when built in, else brute).
+    /// Reference for the agreement check (auto: brute on small scenes, embree on large ones).
     #[arg(long, default_value = "auto", value_parser = parse_accel)]
     reference: AccelKind,
     /// Animation time in seconds.
@@ -81,16 +68,6 @@ fn parse_view(s: &str) -> Result<ViewKind, String> {
 }
 
 pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
-    let camera = match (a.camera, a.eye, a.target) {
-        (Some(i), _, _) => CameraChoice::Scene(i),
-        (None, Some(eye), Some(target)) => CameraChoice::LookAt {
-            eye,
-            target,
-            up: a.up,
-            fov: a.fov,
-        },
-        _ => CameraChoice::Auto,
-    };
     let config = BenchConfig {
         scenes: a.scenes,
         accels: a.accel,
@@ -98,7 +75,7 @@ pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
         views: a.view,
         width: a.width,
         height: a.height,
-        camera,
+        camera: a.camera.choice(),
         runs: a.runs,
         threads: a.threads,
         seed: a.seed,

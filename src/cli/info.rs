@@ -2,21 +2,32 @@
 
 use serde_json::json;
 
-use super::{CliError, CoreArgs, PathArg};
+use super::{parse_accel, parse_build, parse_precision, CliError, PathArg};
+use crate::accel::{AccelKind, BuildQuality, Precision};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct InfoArgs {
     /// Scene file (.glb, .gltf or .tri).
     scene: PathArg,
-    #[command(flatten)]
-    core: CoreArgs,
-    /// Also build the accelerator named by --accel and report its memory.
-    #[arg(long = "with-accel", default_value_t = false)]
-    with_accel: bool,
+    /// Also build this accelerator and report its build time, memory and statistics.
+    #[arg(long, value_parser = parse_accel)]
+    accel: Option<AccelKind>,
+    /// Build quality of the accelerator: fast, sah, sbvh.
+    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    build: BuildQuality,
+    /// Ray/triangle test of the accelerator: fast or watertight.
+    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    precision: Precision,
+    /// Threads for the build; 0 or absent: all cores.
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Animation time in seconds (absent: the file's static pose).
+    #[arg(long)]
+    time: Option<f64>,
 }
 
 pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
-    let scene = crate::formats::load_scene(&a.scene, &a.core.load_options()?)?;
+    let scene = crate::formats::load_scene(&a.scene, &super::load_options(a.time)?)?;
     let bounds = scene.bounds().map(|b| json!({"min": b.min, "max": b.max}));
     let animations: Vec<_> = scene
         .animations
@@ -32,17 +43,28 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         "cameras": scene.cameras.len(),
         "simd": crate::simd::selected().name(),
     });
-    if a.with_accel {
-        let kind = a.core.accel.resolve(0, scene.triangles.len());
-        let pool = a.core.pool()?;
+    if let Some(kind) = a.accel {
+        let kind = kind.resolve(0, scene.triangles.len());
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(a.threads)
+            .build()?;
         let options = crate::accel::BuildOptions {
-            quality: a.core.build,
-            precision: a.core.precision,
-            threads: a.core.threads,
+            quality: a.build,
+            precision: a.precision,
+            threads: pool.current_num_threads(),
         };
+        let t0 = std::time::Instant::now();
         let accel = pool.install(|| crate::accel::build(kind, &scene.triangles, &options))?;
+        let build_seconds = t0.elapsed().as_secs_f64();
         bytes += accel.bytes();
-        out["accel"] = json!({"name": accel.name(), "bytes": accel.bytes()});
+        out["accel"] = json!({
+            "name": accel.name(),
+            "build": a.build.name(),
+            "threads": options.threads,
+            "build_seconds": build_seconds,
+            "bytes": accel.bytes(),
+            "stats": accel.stats(),
+        });
     }
     out["bytes"] = json!(bytes);
     Ok(out)

@@ -136,6 +136,15 @@ impl CoreArgs {
             .build()?)
     }
 
+    /// Build options for a pool of `threads` threads.
+    fn build_options(&self, threads: usize) -> crate::accel::BuildOptions {
+        crate::accel::BuildOptions {
+            quality: self.build,
+            precision: self.precision,
+            threads,
+        }
+    }
+
     fn load_options(&self) -> Result<crate::formats::LoadOptions, CliError> {
         if let Some(t) = self.time {
             if !t.is_finite() {
@@ -145,6 +154,54 @@ impl CoreArgs {
             }
         }
         Ok(crate::formats::LoadOptions { time: self.time })
+    }
+}
+
+/// Load options for `--time`, refusing a time that is not a finite number.
+fn load_options(time: Option<f64>) -> Result<crate::formats::LoadOptions, CliError> {
+    if let Some(t) = time {
+        if !t.is_finite() {
+            return Err(CliError::Usage(format!(
+                "--time {t} is not a finite number"
+            )));
+        }
+    }
+    Ok(crate::formats::LoadOptions { time })
+}
+
+/// How a command picks its camera.
+#[derive(clap::Args, Debug, Clone)]
+struct CameraArgs {
+    /// Use the scene's camera with this index (default: camera 0 if any, else a default view).
+    #[arg(long, conflicts_with_all = ["eye", "target"])]
+    camera: Option<usize>,
+    /// Eye position x,y,z of a look-at camera (with --target).
+    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
+    eye: Option<[f64; 3]>,
+    /// Point looked at x,y,z (with --eye).
+    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
+    target: Option<[f64; 3]>,
+    /// Up vector x,y,z of a look-at camera.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    up: [f64; 3],
+    /// Vertical field of view of a look-at camera, degrees.
+    #[arg(long, default_value_t = 45.0)]
+    fov: f64,
+}
+
+impl CameraArgs {
+    fn choice(&self) -> crate::render::camera::CameraChoice {
+        use crate::render::camera::CameraChoice;
+        match (self.camera, self.eye, self.target) {
+            (Some(i), _, _) => CameraChoice::Scene(i),
+            (None, Some(eye), Some(target)) => CameraChoice::LookAt {
+                eye,
+                target,
+                up: self.up,
+                fov: self.fov,
+            },
+            _ => CameraChoice::Auto,
+        }
     }
 }
 

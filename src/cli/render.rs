@@ -4,8 +4,7 @@ use std::time::Instant;
 
 use serde_json::json;
 
-use super::{parse_integrator, parse_vec3, CliError, CoreArgs, PathArg};
-use crate::accel::BuildOptions;
+use super::{parse_integrator, CameraArgs, CliError, CoreArgs, PathArg};
 use crate::render::camera::ViewCamera;
 use crate::render::image::{encode, ImageFormat};
 use crate::render::{Integrator, RenderOptions};
@@ -32,21 +31,8 @@ pub(super) struct RenderArgs {
     /// Diffuse bounces of the path integrator.
     #[arg(long, default_value_t = 2)]
     bounces: u32,
-    /// Use the scene's camera with this index.
-    #[arg(long, conflicts_with_all = ["eye", "target"])]
-    camera: Option<usize>,
-    /// Eye position x,y,z (with --target).
-    #[arg(long, value_parser = parse_vec3, requires = "target", allow_hyphen_values = true)]
-    eye: Option<[f64; 3]>,
-    /// Point looked at x,y,z (with --eye).
-    #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
-    target: Option<[f64; 3]>,
-    /// Up vector x,y,z.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
-    up: [f64; 3],
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 45.0)]
-    fov: f64,
+    #[command(flatten)]
+    camera: CameraArgs,
     /// Seed of the sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -78,35 +64,13 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     }
     let scene = crate::formats::load_scene(&a.scene, &a.core.load_options()?)?;
     let aspect = a.width as f64 / a.height as f64;
-    let camera = match (a.camera, a.eye, a.target) {
-        (Some(i), _, _) => {
-            let cam =
-                scene
-                    .cameras
-                    .get(i)
-                    .ok_or(crate::render::camera::CameraError::NoSuchCamera {
-                        index: i,
-                        count: scene.cameras.len(),
-                    })?;
-            ViewCamera::from_scene(cam, aspect)?
-        }
-        (None, Some(eye), Some(target)) => ViewCamera::look_at(eye, target, a.up, a.fov, aspect)?,
-        _ => match (scene.cameras.first(), scene.bounds()) {
-            (Some(cam), _) => ViewCamera::from_scene(cam, aspect)?,
-            (None, Some(b)) => ViewCamera::framing(&b, aspect),
-            (None, None) => ViewCamera::look_at([0.0, 0.0, 1.0], [0.0; 3], a.up, a.fov, aspect)?,
-        },
-    };
+    let camera = ViewCamera::choose(&a.camera.choice(), &scene, aspect)?;
     let diagonal = scene.bounds().map(|b| b.diagonal()).unwrap_or(1.0);
     let rays_estimate = a.width as usize * a.height as usize * a.spp as usize;
     let kind = a.core.accel.resolve(rays_estimate, scene.triangles.len());
     let pool = a.core.pool()?;
     let threads = pool.current_num_threads();
-    let options = BuildOptions {
-        quality: a.core.build,
-        precision: a.core.precision,
-        threads,
-    };
+    let options = a.core.build_options(threads);
     let opts = RenderOptions {
         width: a.width,
         height: a.height,

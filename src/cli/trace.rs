@@ -5,7 +5,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::{parse_hit, parse_query, CliError, CoreArgs, PathArg};
-use crate::accel::{BuildOptions, Query};
+use crate::accel::Query;
 use crate::formats::{binary, HitFormat};
 use crate::geometry::{Hit, Ray};
 
@@ -47,11 +47,7 @@ pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
     let kind = a.core.accel.resolve(rays.len(), scene.triangles.len());
     let pool = a.core.pool()?;
     let threads = pool.current_num_threads();
-    let options = BuildOptions {
-        quality: a.core.build,
-        precision: a.core.precision,
-        threads,
-    };
+    let options = a.core.build_options(threads);
     let (accel, build_seconds, body, trace_seconds) = pool.install(|| {
         let t0 = Instant::now();
         let accel = crate::accel::build(kind, &scene.triangles, &options)?;

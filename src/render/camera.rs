@@ -2,7 +2,28 @@
 //! look-at camera from the command line, or a default view that frames the scene.
 
 use crate::geometry::{Aabb, Ray};
-use crate::scene::{Camera, Projection};
+use crate::scene::{Camera, Projection, Scene};
+
+/// Which camera a render or benchmark uses.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub enum CameraChoice {
+    /// glTF camera 0 when the scene has one, else a default view framing the bounds.
+    #[default]
+    Auto,
+    /// The scene's camera with this index.
+    Scene(usize),
+    /// A look-at camera.
+    LookAt {
+        /// Eye.
+        eye: [f64; 3],
+        /// Point looked at.
+        target: [f64; 3],
+        /// Up vector.
+        up: [f64; 3],
+        /// Vertical field of view in degrees.
+        fov: f64,
+    },
+}
 
 /// A camera ready to make rays: an orthonormal frame and a projection.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -140,6 +161,36 @@ impl ViewCamera {
         ];
         ViewCamera::look_at(eye, c, [0.0, 1.0, 0.0], fov, aspect)
             .expect("framing camera is never degenerate")
+    }
+
+    /// The camera `choice` names for `scene`, for an image of the given aspect.
+    pub fn choose(
+        choice: &CameraChoice,
+        scene: &Scene,
+        aspect: f64,
+    ) -> Result<ViewCamera, CameraError> {
+        match choice {
+            CameraChoice::Scene(index) => {
+                let cam = scene.cameras.get(*index).ok_or(CameraError::NoSuchCamera {
+                    index: *index,
+                    count: scene.cameras.len(),
+                })?;
+                ViewCamera::from_scene(cam, aspect)
+            }
+            CameraChoice::LookAt {
+                eye,
+                target,
+                up,
+                fov,
+            } => ViewCamera::look_at(*eye, *target, *up, *fov, aspect),
+            CameraChoice::Auto => match (scene.cameras.first(), scene.bounds()) {
+                (Some(cam), _) => ViewCamera::from_scene(cam, aspect),
+                (None, Some(b)) => Ok(ViewCamera::framing(&b, aspect)),
+                (None, None) => {
+                    ViewCamera::look_at([0.0, 0.0, 1.0], [0.0; 3], [0.0, 1.0, 0.0], 45.0, aspect)
+                }
+            },
+        }
     }
 
     /// Where the camera is.

@@ -1,1 +1,0 @@
-//! Ray/triangle tests (placeholder until the module lands).

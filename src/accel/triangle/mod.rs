@@ -1,0 +1,317 @@
+//! The ray/triangle tests every accelerator uses, in the contract's two precisions:
+//! [`MollerTrumbore`] (`fast`) and [`Watertight`] (Woop, Benthin & Wald 2013).
+//!
+//! Each test exists twice with *identical arithmetic*: a scalar one (1 ray × 1 triangle) and
+//! an 8-wide one (1 ray × 8 triangles in the SoA "multi-triangle" [`Tri8`], Áfra 2013),
+//! generic over the SIMD backend. Neither uses FMA (`mul_add`): every operation is an
+//! IEEE-rounded add/sub/mul/div in the same order, so **every backend and the scalar test
+//! give bit-identical t, u, v and hit decisions**. That costs a few instructions on AVX2 but
+//! buys reproducible results across machines and keeps the watertight test watertight (its
+//! edge functions must be exactly antisymmetric for a shared edge, which a fused
+//! `a·b - c·d` is not).
+//!
+//! The 8-wide tests return only the hit mask and t; the winner's barycentrics are recomputed
+//! by the scalar test on that one triangle ([`TriTest::intersect1`]), which by the identity
+//! above reproduces the 8-wide t exactly. Traversals thus never carry u, v through their
+//! inner loops.
+//!
+//! Hit rules (contract §2): t in the closed `[tmin, tmax]`, no culling, a zero determinant
+//! never hits. The interval test is done on the *final* t (`T · (1/det)`), not on `T`
+//! against `det·tmin`, so that a reported t always lies inside the ray's interval.
+//! `tmin > tmax` is empty; [`PreparedRay::is_empty`] lets callers skip such rays, and the
+//! tests themselves never hit for them unless rounding collapses the interval (callers skip).
+//!
+//! [`oracle`] holds the float64 reference used by the tests of every accelerator.
+
+mod moller;
+pub mod oracle;
+#[cfg(test)]
+mod tests;
+mod watertight;
+
+pub use moller::MollerTrumbore;
+pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
+pub use watertight::Watertight;
+
+use super::Precision;
+use crate::geometry::{Ray, Triangle};
+use crate::simd::Simd;
+use std::fmt::Debug;
+use std::marker::PhantomData;
+
+/// A ray with the per-ray constants of both tests precomputed, so that per-triangle work is
+/// minimal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PreparedRay {
+    /// Origin.
+    pub org: [f32; 3],
+    /// Direction (not normalised).
+    pub dir: [f32; 3],
+    /// Interval start.
+    pub tmin: f32,
+    /// Interval end (may be `+inf`).
+    pub tmax: f32,
+    /// Watertight axis permutation `[kx, ky, kz]`: `kz` is the axis of the largest |dir|
+    /// component (lowest index on ties); `kx`, `ky` follow cyclically and are swapped when
+    /// `dir[kz] < 0`, so the winding (hence the sign convention) is preserved.
+    pub k: [usize; 3],
+    /// Watertight shear `[Sx, Sy, Sz] = [dir[kx]/dir[kz], dir[ky]/dir[kz], 1/dir[kz]]`.
+    pub shear: [f32; 3],
+}
+
+impl PreparedRay {
+    /// Precomputes the constants of `ray`.
+    #[inline]
+    pub fn new(ray: &Ray) -> PreparedRay {
+        let d = ray.dir;
+        let a = d.map(f32::abs);
+        let kz = if a[0] >= a[1] && a[0] >= a[2] {
+            0
+        } else if a[1] >= a[2] {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        PreparedRay {
+            org: ray.org,
+            dir: d,
+            tmin: ray.tmin,
+            tmax: ray.tmax,
+            k: [kx, ky, kz],
+            shear: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
+        }
+    }
+
+    /// Whether the interval `[tmin, tmax]` is empty (or NaN): such rays miss everything.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        // Written as a partial_cmp so that a NaN bound also counts as empty.
+        !matches!(
+            self.tmin.partial_cmp(&self.tmax),
+            Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+        )
+    }
+}
+
+/// A [`PreparedRay`] broadcast into 8-wide registers for the 8-wide tests.
+pub struct PreparedRay8<S: Simd> {
+    /// Origin.
+    pub org: [S::F8; 3],
+    /// Direction.
+    pub dir: [S::F8; 3],
+    /// Origin permuted by `k`: `[org[kx], org[ky], org[kz]]`.
+    pub org_k: [S::F8; 3],
+    /// Interval start.
+    pub tmin: S::F8,
+    /// Watertight axis permutation (see [`PreparedRay::k`]).
+    pub k: [usize; 3],
+    /// Watertight shear (see [`PreparedRay::shear`]).
+    pub shear: [S::F8; 3],
+}
+
+impl<S: Simd> Clone for PreparedRay8<S> {
+    fn clone(&self) -> Self {
+        *self
+    }
+}
+impl<S: Simd> Copy for PreparedRay8<S> {}
+
+impl<S: Simd> PreparedRay8<S> {
+    /// Broadcasts `r`.
+    #[inline(always)]
+    pub fn new(s: S, r: &PreparedRay) -> Self {
+        // Spelled out rather than `array::map`, which is not always inlined and would then
+        // run the vector constructors outside the kernel's target features.
+        let v = |a: [f32; 3]| [s.splat_f8(a[0]), s.splat_f8(a[1]), s.splat_f8(a[2])];
+        let [kx, ky, kz] = r.k;
+        PreparedRay8 {
+            org: v(r.org),
+            dir: v(r.dir),
+            org_k: v([r.org[kx], r.org[ky], r.org[kz]]),
+            tmin: s.splat_f8(r.tmin),
+            k: r.k,
+            shear: v(r.shear),
+        }
+    }
+}
+
+/// The id of padding lanes (never hit).
+pub const PAD_ID: u32 = u32::MAX;
+
+/// Up to 8 triangles in SoA layout ("multi-triangle"): `p[i][axis][lane]`, plus their ids.
+///
+/// The meaning of `p` depends on the test `T`: [`Watertight`] stores the vertices
+/// `v0, v1, v2`; [`MollerTrumbore`] stores `v0, e1 = v1-v0, e2 = v2-v0` (edges rounded to f32
+/// once, at build time). Padding lanes hold NaN coordinates, which no test ever reports as a
+/// hit, and the id [`PAD_ID`]. 320 bytes, 32-byte aligned (five cache lines).
+#[repr(C, align(32))]
+pub struct Tri8<T> {
+    /// Coordinates: `p[i][axis][lane]`.
+    pub p: [[[f32; 8]; 3]; 3],
+    /// Triangle ids (contract §1) per lane; [`PAD_ID`] for padding.
+    pub ids: [u32; 8],
+    test: PhantomData<T>,
+}
+
+const _: () = assert!(std::mem::size_of::<Tri8<Watertight>>() == 320);
+
+impl<T> Clone for Tri8<T> {
+    fn clone(&self) -> Self {
+        Tri8 {
+            p: self.p,
+            ids: self.ids,
+            test: PhantomData,
+        }
+    }
+}
+
+impl<T> Debug for Tri8<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Tri8")
+            .field("p", &self.p)
+            .field("ids", &self.ids)
+            .finish()
+    }
+}
+
+impl<T: TriTest> Tri8<T> {
+    /// Packs up to 8 `(id, triangle)` pairs; the remaining lanes are padding.
+    ///
+    /// # Panics
+    /// With more than 8 triangles.
+    pub fn pack(tris: &[(u32, Triangle)]) -> Tri8<T> {
+        assert!(tris.len() <= 8, "a Tri8 holds at most 8 triangles");
+        let mut p = [[[f32::NAN; 8]; 3]; 3];
+        let mut ids = [PAD_ID; 8];
+        for (lane, (id, tri)) in tris.iter().enumerate() {
+            let d = T::lane_data(tri);
+            for (i, point) in d.iter().enumerate() {
+                for (axis, &c) in point.iter().enumerate() {
+                    p[i][axis][lane] = c;
+                }
+            }
+            ids[lane] = *id;
+        }
+        Tri8 {
+            p,
+            ids,
+            test: PhantomData,
+        }
+    }
+
+    /// Lane `lane`'s data as the scalar test takes it (`p[i][axis]`).
+    #[inline(always)]
+    pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
+        self.p.map(|pt| pt.map(|axis| axis[lane]))
+    }
+
+    /// The contract's closest among the lanes set in `bits` (an 8-wide hit mask as
+    /// [`crate::simd::MaskV::bitmask`] gives it) with ray parameters `t`: smallest t, ties to
+    /// the lowest triangle id. Traversals that keep a running best `(t, id)` compare it
+    /// with this lane's `(t, ids[lane])` the same way (passing `tmax = best t` to
+    /// [`TriTest::intersect8`] keeps equal-t lanes, so a lower id can still win).
+    #[inline]
+    pub fn best_lane(&self, bits: u32, t: &[f32; 8]) -> Option<usize> {
+        let mut best: Option<usize> = None;
+        let mut rest = bits & 0xff;
+        while rest != 0 {
+            let lane = rest.trailing_zeros() as usize;
+            rest &= rest - 1;
+            best = match best {
+                Some(b) if (t[b], self.ids[b]) <= (t[lane], self.ids[lane]) => Some(b),
+                _ => Some(lane),
+            };
+        }
+        best
+    }
+
+    /// Number of real (non-padding) lanes.
+    pub fn len(&self) -> usize {
+        self.ids.iter().filter(|&&id| id != PAD_ID).count()
+    }
+
+    /// Whether every lane is padding.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Packs the non-degenerate triangles of `tris` (ids = their indices) into [`Tri8`]s in id
+/// order; degenerate triangles are left out (contract: never hit).
+pub fn pack_all<T: TriTest>(tris: &[Triangle]) -> Vec<Tri8<T>> {
+    let live: Vec<(u32, Triangle)> = tris
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| !t.is_degenerate())
+        .map(|(i, t)| (i as u32, *t))
+        .collect();
+    live.chunks(8).map(Tri8::pack).collect()
+}
+
+/// A hit of one ray on one triangle: the hit point is `(1-u-v)·v0 + u·v1 + v·v2`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriHit {
+    /// Ray parameter, in `[tmin, tmax]`.
+    pub t: f32,
+    /// Barycentric weight of `v1`.
+    pub u: f32,
+    /// Barycentric weight of `v2`.
+    pub v: f32,
+}
+
+/// A ray/triangle test in its scalar and 8-wide forms, which agree bit for bit.
+pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
+    /// The contract's precision this test implements.
+    const PRECISION: Precision;
+
+    /// The three points stored per triangle (see [`Tri8`]).
+    fn lane_data(tri: &Triangle) -> [[f32; 3]; 3];
+
+    /// Scalar test on one triangle given as [`TriTest::lane_data`], interval
+    /// `[ray.tmin, tmax]`.
+    fn intersect_lane(ray: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit>;
+
+    /// 8-wide test: the mask of lanes hit within `[ray.tmin, tmax]` (per lane) and their t
+    /// (meaningless where the mask is clear). Bit-identical to [`TriTest::intersect1`] per
+    /// lane, on every backend.
+    fn intersect8<S: Simd>(
+        s: S,
+        ray: &PreparedRay8<S>,
+        tri: &Tri8<Self>,
+        tmax: S::F8,
+    ) -> (S::M8, S::F8);
+
+    /// Scalar test on lane `lane` of `tri` (used to get the winner's u, v after an 8-wide
+    /// search).
+    #[inline]
+    fn intersect1(ray: &PreparedRay, tri: &Tri8<Self>, lane: usize, tmax: f32) -> Option<TriHit> {
+        Self::intersect_lane(ray, &tri.lane(lane), tmax)
+    }
+
+    /// Scalar test on a triangle, interval `[ray.tmin, ray.tmax]`.
+    #[inline]
+    fn intersect_triangle(ray: &PreparedRay, tri: &Triangle) -> Option<TriHit> {
+        if tri.is_degenerate() {
+            return None;
+        }
+        Self::intersect_lane(ray, &Self::lane_data(tri), ray.tmax)
+    }
+}
+
+/// The scalar test of `precision` on one triangle (a convenience for callers that hold a
+/// [`Precision`] value rather than a test type).
+pub fn intersect(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
+    let r = PreparedRay::new(ray);
+    if r.is_empty() {
+        return None;
+    }
+    match precision {
+        Precision::Fast => MollerTrumbore::intersect_triangle(&r, tri),
+        Precision::Watertight => Watertight::intersect_triangle(&r, tri),
+    }
+}

@@ -1,0 +1,385 @@
+//! The outer layers of a glTF file: the GLB container, the JSON document, the refused
+//! extensions, and the buffers' bytes (GLB BIN chunk, base64 data URIs, side-by-side files).
+
+use std::borrow::Cow;
+use std::path::Path;
+
+use gltf::json;
+
+use super::GltfError;
+
+/// `glTF` as a little-endian u32: the GLB magic.
+const GLB_MAGIC: &[u8; 4] = b"glTF";
+/// Chunk type of the JSON chunk (`JSON`).
+const CHUNK_JSON: u32 = 0x4E4F_534A;
+/// Chunk type of the binary chunk (`BIN\0`).
+const CHUNK_BIN: u32 = 0x004E_4942;
+
+/// Required extensions that change how geometry is stored and that rayd does not decode.
+/// Any other required extension (materials, textures, lights…) only affects appearance and
+/// is accepted.
+pub const REFUSED_EXTENSIONS: &[&str] = &[
+    "KHR_draco_mesh_compression",
+    "EXT_meshopt_compression",
+    "EXT_mesh_gpu_instancing",
+];
+
+/// A file split into its JSON text and, for GLB, its BIN chunk.
+pub(super) struct Container<'a> {
+    pub json: &'a [u8],
+    pub bin: Option<&'a [u8]>,
+    pub is_glb: bool,
+}
+
+fn u32_at(bytes: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]])
+}
+
+/// Splits a GLB into chunks, or takes the whole input as JSON text.
+///
+/// Every length is checked against the bytes actually present before it is used.
+pub(super) fn split(bytes: &[u8]) -> Result<Container<'_>, GltfError> {
+    if !bytes.starts_with(GLB_MAGIC) {
+        // A UTF-8 byte-order mark is not allowed by the spec but is harmless; skip it rather
+        // than fail on line 1 column 1.
+        let json = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
+        return Ok(Container {
+            json,
+            bin: None,
+            is_glb: false,
+        });
+    }
+    if bytes.len() < 12 {
+        return Err(GltfError::GlbHeader(format!(
+            "the file is {} bytes, shorter than the 12-byte GLB header",
+            bytes.len()
+        )));
+    }
+    let version = u32_at(bytes, 4);
+    if version != 2 {
+        return Err(GltfError::GlbHeader(format!(
+            "version is {version}, only GLB version 2 is supported"
+        )));
+    }
+    let declared = u32_at(bytes, 8) as usize;
+    if declared != bytes.len() {
+        return Err(GltfError::GlbLength {
+            declared,
+            actual: bytes.len(),
+        });
+    }
+    let mut json = None;
+    let mut bin = None;
+    let mut offset = 12;
+    let mut index = 0;
+    while offset < bytes.len() {
+        if bytes.len() - offset < 8 {
+            return Err(GltfError::GlbChunk {
+                index,
+                offset,
+                reason: format!(
+                    "only {} bytes remain, too few for an 8-byte chunk header",
+                    bytes.len() - offset
+                ),
+            });
+        }
+        let length = u32_at(bytes, offset) as usize;
+        let kind = u32_at(bytes, offset + 4);
+        let start = offset + 8;
+        let remaining = bytes.len() - start;
+        if length > remaining {
+            return Err(GltfError::GlbChunk {
+                index,
+                offset,
+                reason: format!("declares {length} bytes of data but only {remaining} remain"),
+            });
+        }
+        let data = &bytes[start..start + length];
+        match (index, kind) {
+            // Some exporters pad the JSON chunk with NULs instead of the spaces the spec
+            // asks for; the JSON parser would call them trailing garbage.
+            (0, CHUNK_JSON) => {
+                let end = data.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+                json = Some(&data[..end]);
+            }
+            (0, _) => {
+                return Err(GltfError::GlbChunk {
+                    index,
+                    offset,
+                    reason: format!("the first chunk must be JSON, found type 0x{kind:08X}"),
+                })
+            }
+            (_, CHUNK_JSON) => {
+                return Err(GltfError::GlbChunk {
+                    index,
+                    offset,
+                    reason: "a second JSON chunk".to_string(),
+                })
+            }
+            // Only the first BIN chunk is addressable (by buffer 0); the spec says readers
+            // ignore chunks of unknown types.
+            (_, CHUNK_BIN) if bin.is_none() => bin = Some(data),
+            _ => {}
+        }
+        offset = start + length;
+        index += 1;
+    }
+    let Some(json) = json else {
+        return Err(GltfError::GlbHeader(
+            "the file has no chunks (a JSON chunk is required)".to_string(),
+        ));
+    };
+    Ok(Container {
+        json,
+        bin,
+        is_glb: true,
+    })
+}
+
+fn json_error(e: serde_json::Error, is_glb: bool) -> GltfError {
+    GltfError::Json {
+        line: e.line(),
+        column: e.column(),
+        detail: if is_glb {
+            format!("{e} (in the GLB JSON chunk)")
+        } else {
+            e.to_string()
+        },
+    }
+}
+
+/// Just the part of the document read before anything else. (Renamed so that a parse
+/// error reads "expected struct glTF".)
+#[derive(serde::Deserialize)]
+#[serde(rename = "glTF")]
+struct RequiredOnly {
+    #[serde(rename = "extensionsRequired", default)]
+    required: Vec<String>,
+}
+
+/// Parses the JSON document, refusing the unsupported required extensions first so that a
+/// Draco file fails naming Draco, whatever else is odd about it.
+pub(super) fn parse(container: &Container<'_>) -> Result<json::Root, GltfError> {
+    let required: RequiredOnly =
+        serde_json::from_slice(container.json).map_err(|e| json_error(e, container.is_glb))?;
+    if let Some(ext) = required
+        .required
+        .iter()
+        .find(|e| REFUSED_EXTENSIONS.contains(&e.as_str()))
+    {
+        return Err(GltfError::UnsupportedExtension(ext.clone()));
+    }
+    json::Root::from_slice(container.json).map_err(|e| json_error(e, container.is_glb))
+}
+
+/// Every buffer's bytes, cut to its declared `byteLength`.
+pub(super) fn resolve_buffers<'a>(
+    root: &json::Root,
+    bin: Option<&'a [u8]>,
+    base_dir: Option<&Path>,
+) -> Result<Vec<Cow<'a, [u8]>>, GltfError> {
+    let mut out = Vec::with_capacity(root.buffers.len());
+    for (i, buffer) in root.buffers.iter().enumerate() {
+        let declared = buffer.byte_length.0;
+        let data: Cow<'a, [u8]> = match &buffer.uri {
+            // GLB: the first buffer without a uri is the BIN chunk.
+            None if i == 0 && bin.is_some() => Cow::Borrowed(bin.unwrap_or_default()),
+            None => return Err(GltfError::NoBufferData { buffer: i }),
+            Some(uri) => {
+                if let Some(rest) = uri.strip_prefix("data:") {
+                    Cow::Owned(
+                        decode_data_uri(rest)
+                            .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?,
+                    )
+                } else {
+                    Cow::Owned(read_external(i, uri, base_dir)?)
+                }
+            }
+        };
+        if (data.len() as u64) < declared {
+            return Err(GltfError::BufferTooShort {
+                buffer: i,
+                declared,
+                actual: data.len() as u64,
+            });
+        }
+        // `declared <= data.len()` so this fits in usize. The GLB BIN chunk may carry up to
+        // three bytes of padding past `byteLength`; views must stay within `byteLength`.
+        let data = match data {
+            Cow::Borrowed(b) => Cow::Borrowed(&b[..declared as usize]),
+            Cow::Owned(mut v) => {
+                v.truncate(declared as usize);
+                Cow::Owned(v)
+            }
+        };
+        out.push(data);
+    }
+    Ok(out)
+}
+
+/// Reads a buffer stored beside the `.gltf`. URIs are relative references (RFC 3986); a
+/// scheme or an absolute path is refused, and so is any file access when there is no base
+/// directory (a scene uploaded over HTTP must not read the server's files).
+fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
+    let has_scheme = uri
+        .split_once(':')
+        .is_some_and(|(scheme, _)| !scheme.is_empty() && !scheme.contains('/'));
+    if has_scheme || uri.starts_with('/') || uri.starts_with('\\') {
+        return Err(GltfError::UnsupportedUri {
+            buffer,
+            uri: uri.to_string(),
+        });
+    }
+    let Some(base) = base_dir else {
+        return Err(GltfError::ExternalBufferNotAllowed {
+            buffer,
+            uri: uri.to_string(),
+        });
+    };
+    // Query and fragment parts are not part of the file name.
+    let path_part = uri.split(['?', '#']).next().unwrap_or_default();
+    let decoded = percent_decode(path_part).ok_or_else(|| GltfError::UnsupportedUri {
+        buffer,
+        uri: uri.to_string(),
+    })?;
+    let path = base.join(decoded);
+    std::fs::read(&path).map_err(|e| GltfError::MissingBuffer {
+        buffer,
+        uri: uri.to_string(),
+        path: path.display().to_string(),
+        detail: e.to_string(),
+    })
+}
+
+/// `%XX` escapes to bytes, then UTF-8; `None` for a malformed escape or non-UTF-8 result.
+fn percent_decode(s: &str) -> Option<String> {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = b.get(i + 1..i + 3)?;
+            let hi = (hex[0] as char).to_digit(16)?;
+            let lo = (hex[1] as char).to_digit(16)?;
+            out.push((hi * 16 + lo) as u8);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).ok()
+}
+
+/// Decodes the part of a data URI after `data:`; only base64 payloads carry binary buffers.
+fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
+    let Some((header, payload)) = rest.split_once(',') else {
+        return Err("the data URI has no ',' before its payload".to_string());
+    };
+    if !header.split(';').any(|p| p == "base64") {
+        return Err(format!(
+            "only base64 data URIs are supported (header is {header:?})"
+        ));
+    }
+    base64_decode(payload.as_bytes())
+}
+
+/// Standard base64 (RFC 4648 §4), padding optional, no whitespace.
+fn base64_decode(input: &[u8]) -> Result<Vec<u8>, String> {
+    fn value(c: u8) -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => c - b'A',
+            b'a'..=b'z' => c - b'a' + 26,
+            b'0'..=b'9' => c - b'0' + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return None,
+        } as u32)
+    }
+    let trimmed = match input {
+        [rest @ .., b'=', b'='] => rest,
+        [rest @ .., b'='] => rest,
+        _ => input,
+    };
+    if trimmed.len() % 4 == 1 {
+        return Err(format!(
+            "base64 payload has an impossible length ({} characters)",
+            input.len()
+        ));
+    }
+    let mut out = Vec::with_capacity(trimmed.len() / 4 * 3 + 2);
+    for (n, group) in trimmed.chunks(4).enumerate() {
+        let mut acc = 0u32;
+        for (k, &c) in group.iter().enumerate() {
+            let v = value(c).ok_or_else(|| {
+                format!(
+                    "invalid base64 character {:?} at payload offset {}",
+                    c as char,
+                    n * 4 + k
+                )
+            })?;
+            acc |= v << (18 - 6 * k);
+        }
+        let bytes = acc.to_be_bytes();
+        out.extend_from_slice(&bytes[1..group.len()]);
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_round_trips() {
+        assert_eq!(base64_decode(b"").unwrap(), b"");
+        assert_eq!(base64_decode(b"Zg==").unwrap(), b"f");
+        assert_eq!(base64_decode(b"Zm8=").unwrap(), b"fo");
+        assert_eq!(base64_decode(b"Zm9v").unwrap(), b"foo");
+        assert_eq!(base64_decode(b"Zm9vYg").unwrap(), b"foob");
+        assert_eq!(base64_decode(b"AAECAw==").unwrap(), [0, 1, 2, 3]);
+        assert!(base64_decode(b"Zm9v!").is_err());
+        assert!(base64_decode(b"Z").is_err());
+    }
+
+    #[test]
+    fn percent_decoding() {
+        assert_eq!(percent_decode("a%20b.bin").unwrap(), "a b.bin");
+        assert!(percent_decode("a%2").is_none());
+        assert!(percent_decode("a%zz").is_none());
+    }
+
+    #[test]
+    fn glb_lengths_are_checked() {
+        assert!(matches!(split(b"glTF"), Err(GltfError::GlbHeader(_))));
+        let mut glb = b"glTF".to_vec();
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&40u32.to_le_bytes());
+        assert!(matches!(split(&glb), Err(GltfError::GlbLength { .. })));
+        let mut glb = b"glTF".to_vec();
+        glb.extend_from_slice(&2u32.to_le_bytes());
+        glb.extend_from_slice(&20u32.to_le_bytes());
+        glb.extend_from_slice(&100u32.to_le_bytes());
+        glb.extend_from_slice(&CHUNK_JSON.to_le_bytes());
+        // A chunk that declares more bytes than remain.
+        assert!(matches!(
+            split(&glb),
+            Err(GltfError::GlbChunk { offset: 12, .. })
+        ));
+        // A chunk header cut short.
+        glb.truncate(16);
+        glb[8..12].copy_from_slice(&16u32.to_le_bytes());
+        assert!(matches!(
+            split(&glb),
+            Err(GltfError::GlbChunk {
+                index: 0,
+                offset: 12,
+                ..
+            })
+        ));
+        // A header with no chunks at all.
+        glb.truncate(12);
+        glb[8..12].copy_from_slice(&12u32.to_le_bytes());
+        assert!(matches!(split(&glb), Err(GltfError::GlbHeader(_))));
+    }
+}

@@ -1,0 +1,559 @@
+//! glTF 2.0 loading: `.glb` and `.gltf` (embedded or side-by-side buffers) to a [`Scene`].
+//!
+//! The `gltf` crate parses the JSON document into typed structs; everything that touches
+//! bytes is done here, because the crate's reader slices buffers without checking ranges.
+//! Loading runs in layers, each checking what the next relies on:
+//!
+//! 1. `container`: the GLB header and chunks, the refused required extensions (before
+//!    anything else), the JSON text, and every buffer's bytes;
+//! 2. `accessor`: every buffer view and accessor range, sparse parts included, against the
+//!    bytes actually present — before any element is read;
+//! 3. `nodes`: references, the tree shape (one parent per node, no cycles) and transforms;
+//! 4. `animation`: every channel checked, evaluated at the requested time;
+//! 5. `mesh`: triangulation, morph targets and skinning, in f64, rounded once to f32.
+//!
+//! Triangle ids follow CONTRACT.md §1: the default scene's nodes in pre-order, for each
+//! node its mesh's primitives in order, each primitive's triangles in index order.
+
+mod accessor;
+mod animation;
+mod container;
+mod math;
+mod mesh;
+mod nodes;
+
+use std::path::Path;
+
+use gltf::json;
+use gltf::json::validation::Checked;
+
+use super::LoadOptions;
+use crate::scene::{Camera, Projection, Scene};
+
+pub use accessor::MAX_VIEWLESS_VALUES;
+pub use container::REFUSED_EXTENSIONS;
+
+/// Most triangles a scene may have. Instancing lets a small file ask for a huge scene
+/// (nodes × triangles per mesh); this bound is checked from the document before the
+/// triangles are allocated. 2^28 triangles are 9 GiB of positions.
+pub const MAX_TRIANGLES: u64 = 1 << 28;
+
+/// Errors of glTF loading. Each names what is wrong and where (indices into the glTF
+/// arrays, byte offsets), so that a user can find the problem in the file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum GltfError {
+    /// The GLB header is short, has another version, or there is no JSON chunk.
+    #[error("GLB header: {0}")]
+    GlbHeader(String),
+    /// The GLB header's total length disagrees with the bytes present (a truncated file).
+    #[error(
+        "GLB header declares {declared} bytes but the file has {actual} (truncated or padded file)"
+    )]
+    GlbLength {
+        /// Length in the header.
+        declared: usize,
+        /// Bytes present.
+        actual: usize,
+    },
+    /// A GLB chunk is malformed: its length runs past the end, or it has the wrong type.
+    #[error("GLB chunk {index} at byte {offset}: {reason}")]
+    GlbChunk {
+        /// Chunk number (0 is the JSON chunk).
+        index: usize,
+        /// Byte offset of the chunk header in the file.
+        offset: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The JSON text is malformed or does not have glTF's shape.
+    #[error("invalid glTF JSON: {detail}")]
+    Json {
+        /// 1-based line of the error (0 when unknown).
+        line: usize,
+        /// 1-based column of the error (0 when unknown).
+        column: usize,
+        /// The parser's message, with its location.
+        detail: String,
+    },
+    /// A required extension changes how geometry is stored and rayd does not decode it.
+    #[error(
+        "required extension {0} is not supported (rayd cannot decode geometry stored with it)"
+    )]
+    UnsupportedExtension(String),
+    /// The file has no scenes: there is nothing to trace.
+    #[error("the file has no scenes: there is nothing to trace")]
+    NoScenes,
+    /// An index into one of the document's arrays points past its end.
+    #[error("{from} refers to {kind} {index}, but the file has {count}")]
+    DanglingReference {
+        /// Who refers ("node 3", "accessor 2 sparse indices").
+        from: String,
+        /// The array referred to ("mesh", "accessor"…).
+        kind: &'static str,
+        /// The index given.
+        index: usize,
+        /// The array's length.
+        count: usize,
+    },
+    /// A buffer has no uri and is not the GLB BIN chunk.
+    #[error("buffer {buffer} has no uri and there is no GLB BIN chunk for it")]
+    NoBufferData {
+        /// Buffer index.
+        buffer: usize,
+    },
+    /// A buffer's data URI is malformed.
+    #[error("buffer {buffer}: bad data URI: {reason}")]
+    BadDataUri {
+        /// Buffer index.
+        buffer: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A buffer's URI has a scheme other than `data:` or is an absolute path.
+    #[error("buffer {buffer}: URI {uri:?} is not supported (only data: URIs and relative paths)")]
+    UnsupportedUri {
+        /// Buffer index.
+        buffer: usize,
+        /// The URI.
+        uri: String,
+    },
+    /// A buffer is stored in a separate file, but no directory was given to find it in
+    /// (e.g. a `.gltf` uploaded on its own): only embedded buffers are allowed.
+    #[error("buffer {buffer} refers to external file {uri:?}, but only embedded buffers are allowed here")]
+    ExternalBufferNotAllowed {
+        /// Buffer index.
+        buffer: usize,
+        /// The URI.
+        uri: String,
+    },
+    /// A side-by-side buffer file cannot be read.
+    #[error("buffer {buffer}: cannot read {path} (uri {uri:?}): {detail}")]
+    MissingBuffer {
+        /// Buffer index.
+        buffer: usize,
+        /// The URI.
+        uri: String,
+        /// The path tried.
+        path: String,
+        /// The OS error.
+        detail: String,
+    },
+    /// A buffer has fewer bytes than its `byteLength`.
+    #[error(
+        "buffer {buffer}: byteLength is {declared} but only {actual} bytes of data are present"
+    )]
+    BufferTooShort {
+        /// Buffer index.
+        buffer: usize,
+        /// `byteLength`.
+        declared: u64,
+        /// Bytes present.
+        actual: u64,
+    },
+    /// A buffer view's byte range lies outside its buffer.
+    #[error("bufferView {view}: bytes {offset}..{end} lie outside buffer {buffer} of {buffer_length} bytes")]
+    BufferViewOutOfRange {
+        /// View index.
+        view: usize,
+        /// Buffer index.
+        buffer: usize,
+        /// `byteOffset`.
+        offset: u64,
+        /// `byteOffset + byteLength` (saturated).
+        end: u64,
+        /// The buffer's length.
+        buffer_length: u64,
+    },
+    /// A buffer view is malformed (bad stride).
+    #[error("bufferView {view}: {reason}")]
+    BadBufferView {
+        /// View index.
+        view: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An accessor's elements run past the end of its buffer view.
+    #[error("accessor {accessor}: its elements (from byte {offset}) end at byte {end} of bufferView {view}, which has {view_length} bytes")]
+    AccessorOutOfRange {
+        /// Accessor index.
+        accessor: usize,
+        /// View index.
+        view: usize,
+        /// The accessor's `byteOffset`.
+        offset: u64,
+        /// End of its last element (saturated).
+        end: u64,
+        /// The view's length.
+        view_length: u64,
+    },
+    /// A sparse accessor's indices or values run past the end of their buffer view.
+    #[error("accessor {accessor}: sparse {part} (from byte {offset}) end at byte {end} of bufferView {view}, which has {view_length} bytes")]
+    SparseOutOfRange {
+        /// Accessor index.
+        accessor: usize,
+        /// `"indices"` or `"values"`.
+        part: &'static str,
+        /// View index.
+        view: usize,
+        /// `byteOffset`.
+        offset: u64,
+        /// End of the part (saturated).
+        end: u64,
+        /// The view's length.
+        view_length: u64,
+    },
+    /// A sparse index points past the accessor's elements.
+    #[error("accessor {accessor}: sparse entry {entry} substitutes element {index}, but the accessor has {count}")]
+    SparseIndexOutOfRange {
+        /// Accessor index.
+        accessor: usize,
+        /// Sparse entry number.
+        entry: usize,
+        /// The index it gives.
+        index: usize,
+        /// The accessor's count.
+        count: usize,
+    },
+    /// An accessor is malformed or of the wrong type for its use.
+    #[error("accessor {accessor}: {reason}")]
+    BadAccessor {
+        /// Accessor index.
+        accessor: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Accessors without a buffer view (zeros plus sparse values) ask for more memory than
+    /// allowed: they cost no file bytes, so their total is bounded.
+    #[error("accessor {accessor}: accessors without a bufferView would hold {values} values, more than the limit of {limit}")]
+    TooLarge {
+        /// Accessor index.
+        accessor: usize,
+        /// Values (elements × components) asked for, this accessor and earlier ones.
+        values: u64,
+        /// [`MAX_VIEWLESS_VALUES`].
+        limit: u64,
+    },
+    /// A vertex index points past the primitive's vertices.
+    #[error("mesh {mesh} primitive {primitive}: index {index} at position {slot} of accessor {accessor} is out of range ({vertices} vertices)")]
+    IndexOutOfRange {
+        /// Mesh index.
+        mesh: usize,
+        /// Primitive index.
+        primitive: usize,
+        /// The indices accessor.
+        accessor: usize,
+        /// Position within the indices.
+        slot: usize,
+        /// The index value.
+        index: u64,
+        /// The POSITION count.
+        vertices: usize,
+    },
+    /// A stored position (or morph target position delta) is NaN or infinite.
+    #[error("accessor {accessor}: position {element} is not finite")]
+    NonFinitePosition {
+        /// Accessor index.
+        accessor: usize,
+        /// Element index.
+        element: usize,
+    },
+    /// A vertex's world position is not finite in f32 (overflow through transforms).
+    #[error("node {node} mesh {mesh} primitive {primitive}: vertex {vertex} is not finite in world space")]
+    NonFiniteWorldPosition {
+        /// Node index.
+        node: usize,
+        /// Mesh index.
+        mesh: usize,
+        /// Primitive index.
+        primitive: usize,
+        /// Vertex index.
+        vertex: usize,
+    },
+    /// A vertex is weighted to a joint the skin does not have.
+    #[error("mesh {mesh} primitive {primitive}: vertex {vertex} uses joint {joint}, but skin {skin} has {joints} joints")]
+    JointOutOfRange {
+        /// Mesh index.
+        mesh: usize,
+        /// Primitive index.
+        primitive: usize,
+        /// Vertex index.
+        vertex: usize,
+        /// The joint number.
+        joint: usize,
+        /// Skin index.
+        skin: usize,
+        /// Number of joints of the skin.
+        joints: usize,
+    },
+    /// The node graph has a cycle; `nodes` lists it, parent before child, first = last.
+    #[error("node cycle: {}", .nodes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(" -> "))]
+    NodeCycle {
+        /// The cycle, e.g. `[0, 1, 0]`.
+        nodes: Vec<usize>,
+    },
+    /// A node is a child twice (of one parent or of two); glTF nodes have one parent.
+    #[error("node {node} is listed as a child of node {first} and of node {second}; a node may have only one parent")]
+    NodeMultipleParents {
+        /// The child.
+        node: usize,
+        /// Its first parent.
+        first: usize,
+        /// The second listing (may equal `first`).
+        second: usize,
+    },
+    /// A scene lists a node that is not a root, or lists it twice.
+    #[error("scene {scene} lists node {node} as a root, but {reason}")]
+    BadSceneRoot {
+        /// Scene index.
+        scene: usize,
+        /// Node index.
+        node: usize,
+        /// Why.
+        reason: String,
+    },
+    /// A node's transform is malformed.
+    #[error("node {node}: {reason}")]
+    BadNode {
+        /// Node index.
+        node: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A mesh primitive is malformed.
+    #[error("mesh {mesh} primitive {primitive}: {reason}")]
+    BadPrimitive {
+        /// Mesh index.
+        mesh: usize,
+        /// Primitive index.
+        primitive: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A skin is malformed.
+    #[error("skin {skin}: {reason}")]
+    BadSkin {
+        /// Skin index.
+        skin: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An animation is malformed.
+    #[error("animation {animation}: {reason}")]
+    BadAnimation {
+        /// Animation index.
+        animation: usize,
+        /// What is wrong (names the channel or sampler).
+        reason: String,
+    },
+    /// A camera is malformed.
+    #[error("camera {camera}: {reason}")]
+    BadCamera {
+        /// Camera index.
+        camera: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The requested animation time is NaN or infinite.
+    #[error("animation time {0} is not a finite number")]
+    BadTime(f64),
+    /// The scene would have more than [`MAX_TRIANGLES`] triangles.
+    #[error("the scene would have {count} triangles, more than the limit of {limit}")]
+    TooManyTriangles {
+        /// Triangles the document asks for.
+        count: u64,
+        /// [`MAX_TRIANGLES`].
+        limit: u64,
+    },
+}
+
+/// Loads a glTF scene from the bytes of a `.glb` or `.gltf` file.
+///
+/// `base_dir` is the directory of a `.gltf` whose buffers are side-by-side files; with
+/// `None`, only embedded buffers (GLB BIN chunk, base64 data URIs) are allowed and an
+/// external URI is [`GltfError::ExternalBufferNotAllowed`]. `options.time` evaluates every
+/// animation at that time; `None` is the static pose (CONTRACT.md §1).
+///
+/// The node graph must be a forest, as glTF requires: a node listed as a child twice, a
+/// cycle, or a scene root that has a parent or is listed twice is an error (never a loop,
+/// never a duplicated instance). Non-FLOAT positions are accepted only when the file uses
+/// `KHR_mesh_quantization`. A skinned node's primitives without `JOINTS_n`/`WEIGHTS_n` are
+/// placed by the node's world transform. Output is bounded by [`MAX_TRIANGLES`], and memory
+/// for accessors without a buffer view by [`MAX_VIEWLESS_VALUES`]; everything else is
+/// bounded by the size of the file.
+pub fn load(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    options: &LoadOptions,
+) -> Result<Scene, GltfError> {
+    if let Some(t) = options.time.filter(|t| !t.is_finite()) {
+        return Err(GltfError::BadTime(t));
+    }
+    let container = container::split(bytes)?;
+    let root = container::parse(&container)?;
+    if root.scenes.is_empty() {
+        return Err(GltfError::NoScenes);
+    }
+    let scene_index = root.scene.map_or(0, |s| s.value());
+    if scene_index >= root.scenes.len() {
+        return Err(GltfError::DanglingReference {
+            from: "the document's default scene".to_string(),
+            kind: "scene",
+            index: scene_index,
+            count: root.scenes.len(),
+        });
+    }
+    let buffers = container::resolve_buffers(&root, container.bin, base_dir)?;
+    let mut data = accessor::Data::new(&root, buffers)?;
+    let quantized = root
+        .extensions_used
+        .iter()
+        .any(|e| e == "KHR_mesh_quantization");
+
+    let parents = nodes::check(&root)?;
+    let order = nodes::scene_order(&root, scene_index, &parents)?;
+    let animations = animation::load(&mut data, quantized)?;
+    let poses = match options.time {
+        Some(t) => Some(animations.evaluate(t, root.nodes.len())?),
+        None => None,
+    };
+    let locals = root
+        .nodes
+        .iter()
+        .enumerate()
+        .map(|(i, n)| nodes::local_matrix(i, n, poses.as_ref().map(|p| &p[i])))
+        .collect::<Result<Vec<_>, _>>()?;
+    let world = nodes::world_matrices(&root, &parents, &locals);
+
+    // Bound the output from the document alone, before decoding anything.
+    let mut meshes = mesh::Meshes::new(quantized);
+    let mut per_mesh: Vec<Option<u64>> = vec![None; root.meshes.len()];
+    let mut total = 0u64;
+    for &n in &order {
+        if let Some(m) = root.nodes[n].mesh.map(|m| m.value()) {
+            let count = match per_mesh[m] {
+                Some(c) => c,
+                None => {
+                    let c = meshes.triangle_count(&data, m)?;
+                    per_mesh[m] = Some(c);
+                    c
+                }
+            };
+            total = total.saturating_add(count);
+        }
+    }
+    if total > MAX_TRIANGLES {
+        return Err(GltfError::TooManyTriangles {
+            count: total,
+            limit: MAX_TRIANGLES,
+        });
+    }
+
+    let mut triangles = Vec::with_capacity(total as usize);
+    let mut cameras = Vec::new();
+    let mut skins: Vec<Option<Vec<math::Mat4>>> = vec![None; root.skins.len()];
+    for &n in &order {
+        let node = &root.nodes[n];
+        if let Some(m) = node.mesh.map(|m| m.value()) {
+            let weights = morph_weights(&root, n, m, poses.as_ref().map(|p| &p[n]));
+            let joints = match node.skin.map(|s| s.value()) {
+                Some(s) => {
+                    if skins[s].is_none() {
+                        skins[s] = Some(mesh::skin_matrices(&mut data, s, &world)?);
+                    }
+                    skins[s].as_deref().map(|j| (s, j))
+                }
+                None => None,
+            };
+            let instance = mesh::Instance {
+                node: n,
+                mesh: m,
+                world: &world[n],
+                weights: &weights,
+                joints,
+            };
+            meshes.emit(&mut data, &mut triangles, &instance)?;
+        }
+        if let Some(c) = node.camera.map(|c| c.value()) {
+            // Each local transform is finite, but a chain of large scales can overflow.
+            if world[n].iter().flatten().any(|v| !v.is_finite()) {
+                return Err(GltfError::BadNode {
+                    node: n,
+                    reason: "the camera's world transform is not finite".to_string(),
+                });
+            }
+            cameras.push(Camera {
+                to_world: world[n],
+                projection: projection(&root, c)?,
+            });
+        }
+    }
+    Ok(Scene {
+        triangles,
+        meshes: root.meshes.len(),
+        cameras,
+        animations: animations.infos,
+    })
+}
+
+/// Morph weights of node `n` instancing mesh `m`: animated, else the node's, else the
+/// mesh's, else none (all zero).
+fn morph_weights(
+    root: &json::Root,
+    n: usize,
+    m: usize,
+    pose: Option<&animation::NodePose>,
+) -> Vec<f64> {
+    if let Some(w) = pose.and_then(|p| p.weights.as_ref()) {
+        return w.clone();
+    }
+    root.nodes[n]
+        .weights
+        .as_ref()
+        .or(root.meshes[m].weights.as_ref())
+        .map(|w| w.iter().map(|&x| f64::from(x)).collect())
+        .unwrap_or_default()
+}
+
+/// Camera `c`'s projection, checked.
+fn projection(root: &json::Root, c: usize) -> Result<Projection, GltfError> {
+    use json::camera::Type;
+    let cam = &root.cameras[c];
+    let bad = |reason: &str| GltfError::BadCamera {
+        camera: c,
+        reason: reason.to_string(),
+    };
+    let finite_pos = |v: f32| v.is_finite() && v > 0.0;
+    match cam.type_ {
+        Checked::Valid(Type::Perspective) => {
+            let p = cam
+                .perspective
+                .as_ref()
+                .ok_or_else(|| bad("type is perspective but there is no perspective object"))?;
+            if !finite_pos(p.yfov) {
+                return Err(bad("yfov must be a positive finite number"));
+            }
+            if p.aspect_ratio.is_some_and(|a| !finite_pos(a)) {
+                return Err(bad("aspectRatio must be a positive finite number"));
+            }
+            Ok(Projection::Perspective {
+                yfov: f64::from(p.yfov),
+                aspect: p.aspect_ratio.map(f64::from),
+            })
+        }
+        Checked::Valid(Type::Orthographic) => {
+            let o = cam
+                .orthographic
+                .as_ref()
+                .ok_or_else(|| bad("type is orthographic but there is no orthographic object"))?;
+            if !o.xmag.is_finite() || !o.ymag.is_finite() || o.xmag == 0.0 || o.ymag == 0.0 {
+                return Err(bad("xmag and ymag must be finite and non-zero"));
+            }
+            Ok(Projection::Orthographic {
+                xmag: f64::from(o.xmag),
+                ymag: f64::from(o.ymag),
+            })
+        }
+        Checked::Invalid => Err(bad("invalid type")),
+    }
+}
