@@ -10,39 +10,23 @@
 use proptest::prelude::*;
 use rayd::accel::dacrt::leaf::{LeafTest, Moller, Watertight};
 use rayd::accel::dacrt::{Dacrt, DacrtOptions};
-use rayd::accel::{Intersector, Precision, Query};
+use rayd::accel::{build, AccelKind, BuildOptions, Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
 
-/// Every ray against every triangle in id order, by the same scalar tests.
+/// The reference: `brute` of the same precision (every ray against every triangle).
 fn reference(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Vec<Hit> {
-    rays.iter()
-        .map(|r| {
-            let mut best = Hit::MISS;
-            if r.tmin.partial_cmp(&r.tmax).is_none() || r.tmin > r.tmax {
-                return best;
-            }
-            for (i, t) in tris.iter().enumerate() {
-                if t.is_degenerate() {
-                    continue;
-                }
-                let h = match precision {
-                    Precision::Fast => Moller::full(r, t.v),
-                    Precision::Watertight => Watertight::full(r, t.v),
-                };
-                if let Some((tt, u, v)) = h {
-                    if tt < best.t {
-                        best = Hit {
-                            t: tt,
-                            prim: i as u32,
-                            u,
-                            v,
-                        };
-                    }
-                }
-            }
-            best
-        })
-        .collect()
+    let brute = build(
+        AccelKind::Brute,
+        tris,
+        &BuildOptions {
+            precision,
+            ..BuildOptions::default()
+        },
+    )
+    .expect("brute builds");
+    let mut hits = vec![Hit::MISS; rays.len()];
+    brute.trace(rays, Query::Closest, &mut hits);
+    hits
 }
 
 /// Options that send even tiny batches through every parallel path.

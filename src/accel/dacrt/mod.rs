@@ -21,6 +21,7 @@
 //! (at most [`options::Parallelism::fork_budget`]·R records at 52 bytes). The hit slots are
 //! the caller's output array, used as scratch while tracing.
 
+pub mod lanes;
 pub mod leaf;
 pub mod options;
 pub mod parallel;
@@ -40,12 +41,12 @@ use crate::geometry::{Hit, Ray, Triangle};
 
 pub use options::{DacrtOptions, Parallelism, Sampling};
 
-use leaf::{LeafTest, Moller, Watertight};
+use leaf::{LeafTest, Moller, Table, Watertight};
 use rays::{RayRec, SLOT_MASK};
 use split::Node;
 use stats::Stats;
 use traverse::{step, Ctx};
-use tris::{decode, TriData};
+use tris::TriData;
 
 /// A DACRT accelerator: the frame's triangle precompute and the traversal's settings.
 pub struct Dacrt {
@@ -97,20 +98,26 @@ impl Dacrt {
         &self.options
     }
 
-    /// Traces one batch of at most `SLOT_MASK + 1` rays; `finish` computes u, v and the miss
-    /// records (not needed when only occlusion is asked for).
+    /// Traces one batch of at most `SLOT_MASK + 1` rays; `finish` writes the miss records
+    /// (not needed when only occlusion is asked for).
     fn batch<T: LeafTest>(&self, rays: &[Ray], hits: &mut [Hit], any: bool, finish: bool) {
         let stats = self.options.stats.then(Stats::default);
         let t0 = Instant::now();
-        // Hit slots hold (best t so far, prim, tmin) while tracing; records carry the slot.
+        // Hit slots hold the best hit so far (t starts at tmax); records carry the slot.
         hits.par_iter_mut().zip(rays.par_iter()).for_each(|(h, r)| {
             *h = Hit {
                 t: r.tmax,
                 prim: u32::MAX,
-                u: r.tmin,
+                u: 0.0,
                 v: 0.0,
             }
         });
+        // `tmin` is not in the records; rays whose `tmin` is not 0 find it here.
+        let tmin: Vec<f32> = if rays.par_iter().any(|r| r.tmin != 0.0) {
+            rays.par_iter().map(|r| r.tmin).collect()
+        } else {
+            Vec::new()
+        };
         let live = self.tris.live();
         if live > 0 && !rays.is_empty() {
             let mut recs: Vec<RayRec> = rays
@@ -120,23 +127,24 @@ impl Dacrt {
                     let mut rec = RayRec::new(r, i as u32);
                     // Empty (or NaN) intervals never hit: such rays start inactive.
                     if !interval_nonempty(r) {
-                        rec.tmax = f32::NEG_INFINITY;
+                        rec.set_tmax(f32::NEG_INFINITY);
                     }
                     rec
                 })
                 .collect();
             let threads = rayon::current_num_threads();
-            let parallel = self.options.parallel.enabled && threads > 1;
+            let p = &self.options.parallel;
+            let parallel = p.enabled && threads > 1;
+            let budget = (p.fork_budget as f64 * rays.len() as f64) as usize;
             let ctx = Ctx {
                 tris: &self.tris,
                 opts: &self.options,
                 any,
                 stats: stats.as_ref(),
                 parallel,
-                budget: AtomicIsize::new(
-                    (self.options.parallel.fork_budget as f64 * rays.len() as f64) as isize,
-                ),
+                budget: AtomicIsize::new(budget as isize),
                 pending: (0..threads).map(|_| AtomicU32::new(0)).collect(),
+                data_min_rays: p.data_min_rays.min((budget / 4).max(4 * p.fork_min_rays)),
             };
             let root = Node {
                 bounds: self.tris.bounds,
@@ -146,14 +154,20 @@ impl Dacrt {
             if n > 0 {
                 let mut ids = vec![0u32; live];
                 self.tris.fill_ids(&mut ids);
-                step::<T>(&ctx, &mut recs[..n], hits, &mut ids, &root, 0);
+                let mut table = Table {
+                    hits: &mut *hits,
+                    tmin: &tmin,
+                };
+                step::<T>(&ctx, &mut recs[..n], &mut table, &mut ids, &root, 0);
             }
         }
         if finish {
-            let tris = &self.tris;
-            hits.par_iter_mut()
-                .zip(rays.par_iter())
-                .for_each(|(h, r)| *h = finish_hit::<T>(tris, r, h));
+            // Slots that found nothing become the contract's miss record.
+            hits.par_iter_mut().for_each(|h| {
+                if h.prim == u32::MAX {
+                    *h = Hit::MISS;
+                }
+            });
         }
         if let Some(s) = &stats {
             eprintln!(
@@ -185,35 +199,6 @@ fn interval_nonempty(r: &Ray) -> bool {
         r.tmin.partial_cmp(&r.tmax),
         Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
     )
-}
-
-/// The final record of a ray from its slot: the miss record, or the hit with u, v computed
-/// by the scalar form of the same test (which reproduces `t` bit for bit).
-fn finish_hit<T: LeafTest>(tris: &TriData, ray: &Ray, slot: &Hit) -> Hit {
-    if slot.prim == u32::MAX {
-        return Hit::MISS;
-    }
-    let i = slot.prim as usize;
-    match T::full(ray, decode(&tris.boxes[i], &tris.extra[i])) {
-        Some((t, u, v)) => {
-            debug_assert_eq!(t.to_bits(), slot.t.to_bits(), "leaf and final test agree");
-            Hit {
-                t: slot.t,
-                prim: slot.prim,
-                u,
-                v,
-            }
-        }
-        None => {
-            debug_assert!(false, "the winning triangle must hit again");
-            Hit {
-                t: slot.t,
-                prim: slot.prim,
-                u: 0.0,
-                v: 0.0,
-            }
-        }
-    }
 }
 
 impl Intersector for Dacrt {

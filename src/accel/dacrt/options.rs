@@ -48,7 +48,9 @@ impl Sampling {
 pub struct Parallelism {
     /// Master switch (off: one thread whatever the pool).
     pub enabled: bool,
-    /// Nodes with at least this many active rays filter them data-parallel, in place.
+    /// Nodes with at least this many active rays filter them data-parallel, in place (the
+    /// trace lowers it to a quarter of the fork budget when that is smaller, so that forks
+    /// are small enough to fit several at once).
     pub data_min_rays: usize,
     /// Nodes with fewer than `data_min_rays` but at least this many active rays hand their
     /// second child to another thread (with a copy of its rays).
@@ -68,7 +70,7 @@ impl Default for Parallelism {
             data_min_rays: 1 << 16,
             fork_min_rays: 1 << 10,
             fork_budget: 0.125,
-            data_min_tris: 1 << 16,
+            data_min_tris: 1 << 13,
             grain: 1 << 14,
         }
     }

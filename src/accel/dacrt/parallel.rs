@@ -29,8 +29,8 @@ use rayon::prelude::*;
 
 use crate::geometry::Hit;
 
-use super::leaf::{leaf, merge_slot, LeafTest, Sink};
-use super::rays::{filter, filter_copy, FilterBox, RayRec, TMIN_FLAG};
+use super::leaf::{leaf, merge_slot, LeafTest, Sink, Table};
+use super::rays::{filter, filter_copy, FilterBox, RayRec};
 use super::split::{middle_plane, partition_acc, Acc, Bins, Node, Parts};
 use super::stats::{lap, Stats};
 use super::traverse::{step, visit, Child, Ctx};
@@ -147,39 +147,39 @@ pub fn partition_bins_par(
     }
 }
 
-/// A sink that reads the table but defers its writes: what parallel chunks of one leaf use.
+/// A sink that defers its writes: what parallel chunks of one leaf use.
 struct Deferred<'t> {
-    table: &'t [Hit],
-    out: Vec<(u32, f32, u32)>,
+    tmin: &'t [f32],
+    out: Vec<(u32, Hit)>,
 }
 
 impl Sink for Deferred<'_> {
     fn tmin(&self, index: usize) -> f32 {
-        self.table[index].u
+        self.tmin.get(index).copied().unwrap_or(0.0)
     }
 
-    fn offer(&mut self, index: usize, t: f32, prim: u32, _any: bool) -> f32 {
-        self.out.push((index as u32, t, prim));
-        t
+    fn offer(&mut self, index: usize, hit: Hit, _old: f32, _any: bool) -> f32 {
+        self.out.push((index as u32, hit));
+        hit.t
     }
 }
 
 /// A leaf with many rays: chunks of rays in parallel, hits merged into `table` afterwards.
-pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut [Hit], ids: &[u32]) {
-    let shared: &[Hit] = table;
-    let outs: Vec<Vec<(u32, f32, u32)>> = rays
+pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut Table, ids: &[u32]) {
+    let tmin = table.tmin;
+    let outs: Vec<Vec<(u32, Hit)>> = rays
         .par_chunks_mut(ctx.opts.parallel.grain)
         .map(|chunk| {
             let mut d = Deferred {
-                table: shared,
+                tmin,
                 out: Vec::new(),
             };
             leaf::<T, _>(ctx.tris, chunk, &mut d, ids, ctx.any);
             d.out
         })
         .collect();
-    for (index, t, prim) in outs.into_iter().flatten() {
-        merge_slot(&mut table[index as usize], t, prim, ctx.any);
+    for (index, hit) in outs.into_iter().flatten() {
+        merge_slot(&mut table.hits[index as usize], hit, ctx.any);
     }
 }
 
@@ -187,7 +187,7 @@ pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut [Hit], 
 pub fn should_fork(ctx: &Ctx, n: usize) -> bool {
     let p = &ctx.opts.parallel;
     n >= p.fork_min_rays
-        && n < p.data_min_rays
+        && n < ctx.data_min_rays
         && ctx.budget.load(Relaxed) >= n as isize
         && rayon::current_thread_index()
             .and_then(|i| ctx.pending.get(i))
@@ -209,23 +209,25 @@ fn release(ctx: &Ctx, n: usize) {
     ctx.budget.fetch_add(n as isize, Relaxed);
 }
 
-/// A child's rays copied out of its parent's, with a local hit table whose `v` field holds
-/// the position of each copied ray in the parent's array.
+/// A child's rays copied out of its parent's, with a local hit table and, per copied ray,
+/// its position in the parent's array (`link`), through which the results go back.
 struct Copy {
     rays: Vec<RayRec>,
-    table: Vec<Hit>,
+    hits: Vec<Hit>,
+    link: Vec<u32>,
+    tmin: Vec<f32>,
 }
 
 impl Copy {
     /// Copies the rays of `parent` that `child` needs (all of them when it skips filtering).
-    fn make(ctx: &Ctx, parent: &[RayRec], ptable: &[Hit], child: &Child) -> Copy {
+    fn make(ctx: &Ctx, parent: &[RayRec], ptmin: &[f32], child: &Child) -> Copy {
         let t0 = ctx.clock();
         let mut rays = Vec::with_capacity(parent.len());
         let mut link = Vec::with_capacity(parent.len());
         if child.skip {
             for (i, r) in parent.iter().enumerate() {
                 let mut r = *r;
-                r.slot = (r.slot & TMIN_FLAG) | i as u32;
+                r.set_index(i as u32);
                 rays.push(r);
                 link.push(i as u32);
             }
@@ -237,30 +239,45 @@ impl Copy {
                 &mut link,
             );
         }
-        let table = rays
+        let hits = rays
             .iter()
-            .zip(&link)
-            .map(|(r, &p)| Hit {
-                t: r.tmax,
+            .map(|r| Hit {
+                t: r.tmax(),
                 prim: u32::MAX,
-                u: ptable[parent[p as usize].index()].u,
-                v: f32::from_bits(p),
+                u: 0.0,
+                v: 0.0,
             })
             .collect();
+        let tmin = if ptmin.is_empty() {
+            Vec::new()
+        } else {
+            link.iter()
+                .map(|&p| ptmin[parent[p as usize].index()])
+                .collect()
+        };
         if let Some(s) = ctx.stats {
             Stats::add(&s.box_tests, parent.len() as u64);
             lap(&s.filter_ns, t0);
         }
-        Copy { rays, table }
+        Copy {
+            rays,
+            hits,
+            link,
+            tmin,
+        }
     }
 
     /// Runs the child on the copy.
     fn run<T: LeafTest>(&mut self, ctx: &Ctx, child: Child, depth: u32) {
         if !self.rays.is_empty() {
+            let mut table = Table {
+                hits: &mut self.hits,
+                tmin: &self.tmin,
+            };
             step::<T>(
                 ctx,
                 &mut self.rays,
-                &mut self.table,
+                &mut table,
                 child.ids,
                 &child.node,
                 depth + 1,
@@ -269,19 +286,24 @@ impl Copy {
     }
 
     /// Writes the copy's hits back into the parent's table and records.
-    fn merge(&self, ctx: &Ctx, parent: &mut [RayRec], ptable: &mut [Hit]) {
+    fn merge(&self, ctx: &Ctx, parent: &mut [RayRec], ptable: &mut Table) {
         let t0 = ctx.clock();
-        for h in &self.table {
+        for (h, &p) in self.hits.iter().zip(&self.link) {
             if h.prim == u32::MAX {
                 continue;
             }
-            let r = &mut parent[h.v.to_bits() as usize];
-            let t = merge_slot(&mut ptable[r.index()], h.t, h.prim, ctx.any);
-            r.tmax = if ctx.any { f32::NEG_INFINITY } else { t };
+            let r = &mut parent[p as usize];
+            let t = merge_slot(&mut ptable.hits[r.index()], *h, ctx.any);
+            r.set_tmax(if ctx.any { f32::NEG_INFINITY } else { t });
         }
         if let Some(s) = ctx.stats {
             lap(&s.merge_ns, t0);
         }
+    }
+
+    /// Records held.
+    fn len(&self) -> usize {
+        self.rays.len()
     }
 }
 
@@ -289,7 +311,7 @@ impl Copy {
 pub fn fork<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
-    table: &mut [Hit],
+    table: &mut Table,
     first: Child,
     second: Child,
     depth: u32,
@@ -300,17 +322,21 @@ pub fn fork<T: LeafTest>(
         visit::<T>(ctx, rays, table, second, depth);
         return;
     }
-    let mut a = Copy::make(ctx, rays, table, &first);
-    release(ctx, n - a.rays.len());
-    let held_a = a.rays.len();
-    let (prays, ptable): (&[RayRec], &[Hit]) = (rays, table);
+    let (prays, ptmin): (&[RayRec], &[f32]) = (rays, table.tmin);
     // This thread now has stealable work until the second child starts somewhere.
     let pending = rayon::current_thread_index().and_then(|i| ctx.pending.get(i));
     if let Some(p) = pending {
         p.fetch_add(1, Relaxed);
     }
-    let ((), b) = rayon::join_context(
-        |_| a.run::<T>(ctx, first, depth),
+    // The first child's copy is made inside the fork, so that a thief can copy the second
+    // child's rays from the same (read-only) parent array at the same time.
+    let (a, b) = rayon::join_context(
+        |_| {
+            let mut a = Copy::make(ctx, prays, ptmin, &first);
+            release(ctx, n - a.len());
+            a.run::<T>(ctx, first, depth);
+            a
+        },
         |c| {
             if let Some(p) = pending {
                 p.fetch_sub(1, Relaxed);
@@ -318,14 +344,14 @@ pub fn fork<T: LeafTest>(
             if !c.migrated() || !reserve(ctx, n) {
                 return Err(second);
             }
-            let mut b = Copy::make(ctx, prays, ptable, &second);
-            release(ctx, n - b.rays.len());
+            let mut b = Copy::make(ctx, prays, ptmin, &second);
+            release(ctx, n - b.len());
             b.run::<T>(ctx, second, depth);
             Ok(b)
         },
     );
     a.merge(ctx, rays, table);
-    release(ctx, held_a);
+    release(ctx, a.len());
     drop(a);
     match b {
         Ok(b) => {
@@ -333,7 +359,7 @@ pub fn fork<T: LeafTest>(
                 Stats::add(&s.forks_stolen, 1);
             }
             b.merge(ctx, rays, table);
-            release(ctx, b.rays.len());
+            release(ctx, b.len());
         }
         Err(second) => {
             if let Some(s) = ctx.stats {

@@ -12,28 +12,24 @@
 //! for the few groups that contain such rays.
 
 use crate::geometry::{Aabb, Ray};
+use crate::simd::{self, Kernel, MaskV, Simd};
 
-/// One active ray: origin, slot index (with [`TMIN_FLAG`]), direction, and the current end of
-/// its interval — the distance of the best hit so far, or `-inf` once an `any` ray is done.
+use super::lanes::{Box8, Rays8, Transposer};
+
+/// One active ray, as the 8 lanes of one SIMD vector: origin (lanes 0–2), slot word (lane 3,
+/// as bits: the index of the ray's hit slot in the table of the task that owns this array,
+/// or'ed with [`TMIN_FLAG`] when the ray's `tmin` is not 0), direction (lanes 4–6), and the
+/// current end of its interval (lane 7) — the distance of the best hit so far, or `-inf`
+/// once an `any` ray is done.
 #[repr(C, align(32))]
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct RayRec {
-    /// Origin.
-    pub org: [f32; 3],
-    /// Index of the ray's hit slot in the table of the task that owns this array, or'ed with
-    /// [`TMIN_FLAG`] when the ray's `tmin` is not 0.
-    pub slot: u32,
-    /// Direction (not normalised).
-    pub dir: [f32; 3],
-    /// End of the interval still searched.
-    pub tmax: f32,
-}
+pub struct RayRec(pub [f32; 8]);
 
 const _: () = assert!(std::mem::size_of::<RayRec>() == 32);
 
-/// Set in [`RayRec::slot`] when the ray's `tmin` is not 0 (its `tmin` is then in the slot).
+/// Set in the slot word when the ray's `tmin` is not 0 (its `tmin` is then in the slot).
 pub const TMIN_FLAG: u32 = 1 << 31;
-/// The bits of [`RayRec::slot`] that index the hit table.
+/// The bits of the slot word that index the hit table.
 pub const SLOT_MASK: u32 = TMIN_FLAG - 1;
 
 impl RayRec {
@@ -41,25 +37,66 @@ impl RayRec {
     #[inline]
     pub fn new(ray: &Ray, slot: u32) -> RayRec {
         let flag = if ray.tmin != 0.0 { TMIN_FLAG } else { 0 };
-        RayRec {
-            org: ray.org,
-            slot: slot | flag,
-            dir: ray.dir,
-            tmax: ray.tmax,
-        }
+        let (o, d) = (ray.org, ray.dir);
+        RayRec([
+            o[0],
+            o[1],
+            o[2],
+            f32::from_bits(slot | flag),
+            d[0],
+            d[1],
+            d[2],
+            ray.tmax,
+        ])
+    }
+
+    /// Origin.
+    #[inline(always)]
+    pub fn org(&self) -> [f32; 3] {
+        [self.0[0], self.0[1], self.0[2]]
+    }
+
+    /// Direction.
+    #[inline(always)]
+    pub fn dir(&self) -> [f32; 3] {
+        [self.0[4], self.0[5], self.0[6]]
+    }
+
+    /// End of the interval still searched.
+    #[inline(always)]
+    pub fn tmax(&self) -> f32 {
+        self.0[7]
+    }
+
+    /// Sets the end of the interval.
+    #[inline(always)]
+    pub fn set_tmax(&mut self, t: f32) {
+        self.0[7] = t;
+    }
+
+    /// The slot word (index and [`TMIN_FLAG`]).
+    #[inline(always)]
+    pub fn slot(&self) -> u32 {
+        self.0[3].to_bits()
+    }
+
+    /// Moves the ray to hit slot `index`, keeping its flag.
+    #[inline(always)]
+    pub fn set_index(&mut self, index: u32) {
+        self.0[3] = f32::from_bits((self.slot() & TMIN_FLAG) | index);
     }
 
     /// Index of the hit slot.
     #[inline(always)]
     pub fn index(&self) -> usize {
-        (self.slot & SLOT_MASK) as usize
+        (self.slot() & SLOT_MASK) as usize
     }
 }
 
 /// Relative slack on the `t` comparisons of the box test: the triangle test's `t` and the
 /// slab distances are rounded differently, and a ray must never be filtered out of a box
 /// whose triangle `brute` would report at exactly the current `tmax` (ties decide by id).
-const T_SLACK: f32 = 1.0 / 4096.0;
+pub(super) const T_SLACK: f32 = 1.0 / 4096.0;
 
 /// A box prepared for filtering: grown by a hair on every side so that a ray lying exactly in
 /// a face plane (an axis-parallel ray through a triangle's edge) never produces `0 × ∞`,
@@ -125,36 +162,74 @@ fn max_nan_left(a: f32, b: f32) -> f32 {
     }
 }
 
-/// The box-test mask of up to 8 records starting at `recs[0]` (bit i for `recs[i]`).
-#[inline(always)]
-fn mask8(b: &FilterBox, recs: &[RayRec]) -> u32 {
-    let mut m = 0;
-    for (i, r) in recs.iter().enumerate().take(8) {
-        if b.entry(r.org, r.dir, r.tmax).is_some() {
-            m |= 1 << i;
+/// Runs `each(base, bits)` for every group of 8 records of `rays` (fewer in the last one)
+/// with the bits of the rays that enter `b`.
+struct Groups<'a, F> {
+    rays: &'a [RayRec],
+    b: &'a FilterBox,
+    each: F,
+}
+
+impl<F: FnMut(usize, u32)> Kernel for Groups<'_, F> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<S: Simd>(mut self, s: S) {
+        let tr = Transposer::new(s);
+        let bx = Box8::new(s, self.b);
+        for (g, recs) in self.rays.chunks(8).enumerate() {
+            let r = Rays8::load(s, &tr, recs);
+            let bits = bx.test(&r).0.bitmask() & ((1u32 << recs.len()) - 1);
+            (self.each)(8 * g, bits);
         }
     }
-    m
+}
+
+/// The in-place filter as one kernel: masks 8 rays at a time and swaps the active ones to
+/// the front with whole-record (32-byte) moves, all under the backend's target features.
+struct Filter<'a> {
+    rays: &'a mut [RayRec],
+    b: &'a FilterBox,
+}
+
+impl Kernel for Filter<'_> {
+    type Output = usize;
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> usize {
+        let tr = Transposer::new(s);
+        let bx = Box8::new(s, self.b);
+        let rays = self.rays;
+        let n = rays.len();
+        let mut w = 0;
+        let mut base = 0;
+        while base < n {
+            let len = (n - base).min(8);
+            let r = Rays8::load(s, &tr, &rays[base..base + len]);
+            let mut bits = bx.test(&r).0.bitmask() & ((1u32 << len) - 1);
+            if bits == 0xFF && w == base {
+                w += 8;
+            } else {
+                while bits != 0 {
+                    let lane = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let i = base + lane;
+                    if i != w {
+                        rays.swap(w, i);
+                    }
+                    w += 1;
+                }
+            }
+            base += len;
+        }
+        w
+    }
 }
 
 /// Filters `rays` in place against `b`: the rays that enter the box move to the front;
-/// returns how many. Unstable (order is not kept), 8 rays per step.
+/// returns how many. Unstable (order is not kept), 8 rays per SIMD step.
 pub fn filter(rays: &mut [RayRec], b: &FilterBox) -> usize {
-    let mut w = 0;
-    let n = rays.len();
-    let mut i = 0;
-    while i < n {
-        let end = (i + 8).min(n);
-        let mut m = mask8(b, &rays[i..end]);
-        while m != 0 {
-            let lane = m.trailing_zeros() as usize;
-            m &= m - 1;
-            rays.swap(w, i + lane);
-            w += 1;
-        }
-        i = end;
-    }
-    w
+    simd::dispatch(simd::selected(), Filter { rays, b })
 }
 
 /// Appends the rays of `rays` that enter `b` to `out`, each with its hit slot renumbered to
@@ -166,21 +241,23 @@ pub fn filter_copy(
     out: &mut Vec<RayRec>,
     link: &mut Vec<u32>,
 ) -> usize {
-    let n = rays.len();
-    let mut i = 0;
-    while i < n {
-        let end = (i + 8).min(n);
-        let mut m = mask8(b, &rays[i..end]);
-        while m != 0 {
-            let lane = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let mut r = rays[i + lane];
-            r.slot = (r.slot & TMIN_FLAG) | out.len() as u32;
-            out.push(r);
-            link.push((i + lane) as u32);
-        }
-        i = end;
-    }
+    simd::dispatch(
+        simd::selected(),
+        Groups {
+            rays,
+            b,
+            each: |base: usize, mut bits: u32| {
+                while bits != 0 {
+                    let lane = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let mut r = rays[base + lane];
+                    r.set_index(out.len() as u32);
+                    out.push(r);
+                    link.push((base + lane) as u32);
+                }
+            },
+        },
+    );
     out.len()
 }
 
@@ -189,12 +266,15 @@ mod tests {
     use super::*;
 
     fn rec(org: [f32; 3], dir: [f32; 3], tmax: f32, slot: u32) -> RayRec {
-        RayRec {
-            org,
+        RayRec::new(
+            &Ray {
+                org,
+                tmin: 0.0,
+                dir,
+                tmax,
+            },
             slot,
-            dir,
-            tmax,
-        }
+        )
     }
 
     fn unit() -> FilterBox {
@@ -243,17 +323,66 @@ mod tests {
             .collect();
         let n = filter(&mut rays, &b);
         assert_eq!(n, 7);
-        let mut front: Vec<u32> = rays[..n].iter().map(|r| r.slot).collect();
+        let mut front: Vec<u32> = rays[..n].iter().map(|r| r.slot()).collect();
         front.sort();
         assert_eq!(front, vec![0, 3, 6, 9, 12, 15, 18]);
-        let mut all: Vec<u32> = rays.iter().map(|r| r.slot).collect();
+        let mut all: Vec<u32> = rays.iter().map(|r| r.slot()).collect();
         all.sort();
         assert_eq!(all, (0..21).collect::<Vec<_>>());
         let mut out = Vec::new();
         let mut link = Vec::new();
         filter_copy(&rays, &b, &mut out, &mut link);
         assert_eq!(out.len(), 7);
-        assert!(out.iter().enumerate().all(|(i, r)| r.slot == i as u32));
+        assert!(out.iter().enumerate().all(|(i, r)| r.slot() == i as u32));
         assert!(link.iter().all(|&p| (p as usize) < n));
+    }
+}
+
+#[cfg(test)]
+mod speed {
+    use super::*;
+
+    /// Raw filter throughput by working-set size (run with `--ignored --nocapture`).
+    #[test]
+    #[ignore]
+    fn filter_throughput() {
+        let mut s = 1u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+        };
+        let b = FilterBox::new(&Aabb {
+            min: [-0.5, -0.5, -0.5],
+            max: [0.5, 0.5, 0.5],
+        });
+        for n in [1 << 10, 1 << 14, 1 << 18, 1 << 20] {
+            let mut rays: Vec<RayRec> = (0..n)
+                .map(|i| {
+                    RayRec::new(
+                        &Ray {
+                            org: [rnd() * 2.0, rnd() * 2.0, -3.0],
+                            tmin: 0.0,
+                            dir: [rnd() * 0.1, rnd() * 0.1, 1.0],
+                            tmax: f32::INFINITY,
+                        },
+                        i,
+                    )
+                })
+                .collect();
+            let reps = (1 << 24) / n as usize;
+            let t0 = std::time::Instant::now();
+            let mut act = 0;
+            for _ in 0..reps {
+                act += filter(&mut rays, &b);
+            }
+            let dt = t0.elapsed().as_secs_f64();
+            println!(
+                "n={n}: {:.2} ns/ray, {:.0}% active",
+                dt * 1e9 / (reps * n as usize) as f64,
+                100.0 * act as f64 / (reps * n as usize) as f64
+            );
+        }
     }
 }

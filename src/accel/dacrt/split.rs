@@ -314,8 +314,8 @@ pub fn sample_pair(samples: &[RayRec], left: &Aabb, right: &Aabb) -> Sampled {
     let (fl, fr) = (FilterBox::new(left), FilterBox::new(right));
     let mut s = Sampled::default();
     for r in samples {
-        let dl = fl.entry(r.org, r.dir, r.tmax);
-        let dr = fr.entry(r.org, r.dir, r.tmax);
+        let dl = fl.entry(r.org(), r.dir(), r.tmax());
+        let dr = fr.entry(r.org(), r.dir(), r.tmax());
         s.hits_left += u32::from(dl.is_some());
         s.hits_right += u32::from(dr.is_some());
         let (dl, dr) = (dl.unwrap_or(f32::INFINITY), dr.unwrap_or(f32::INFINITY));

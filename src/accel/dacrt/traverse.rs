@@ -10,9 +10,9 @@
 use std::sync::atomic::{AtomicIsize, AtomicU32};
 use std::time::Instant;
 
-use crate::geometry::{Aabb, Hit};
+use crate::geometry::Aabb;
 
-use super::leaf::{leaf, LeafTest};
+use super::leaf::{leaf, LeafTest, Table};
 use super::options::DacrtOptions;
 use super::parallel;
 use super::rays::{filter, FilterBox, RayRec};
@@ -36,6 +36,9 @@ pub struct Ctx<'a> {
     pub budget: AtomicIsize,
     /// Per pool thread: its forks whose second child has not started yet (stealable work).
     pub pending: Vec<AtomicU32>,
+    /// Steps with at least this many rays work data-parallel; below, they fork. At most the
+    /// option's value, and small enough that several forks fit in the copy budget.
+    pub data_min_rays: usize,
 }
 
 impl Ctx<'_> {
@@ -49,7 +52,7 @@ impl Ctx<'_> {
     pub fn filter(&self, rays: &mut [RayRec], b: &Aabb) -> usize {
         let t0 = self.clock();
         let fb = FilterBox::new(b);
-        let n = if self.parallel && rays.len() >= self.opts.parallel.data_min_rays {
+        let n = if self.parallel && rays.len() >= self.data_min_rays {
             parallel::filter_par(rays, &fb, self.opts.parallel.grain)
         } else {
             filter(rays, &fb)
@@ -77,7 +80,7 @@ pub struct Child<'i> {
 pub fn step<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
-    table: &mut [Hit],
+    table: &mut Table,
     ids: &mut [u32],
     node: &Node,
     depth: u32,
@@ -124,7 +127,7 @@ pub fn step<T: LeafTest>(
 pub fn visit<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
-    table: &mut [Hit],
+    table: &mut Table,
     child: Child,
     depth: u32,
 ) {
@@ -149,9 +152,9 @@ pub fn visit<T: LeafTest>(
 }
 
 /// Naive intersection of a leaf.
-fn leaf_step<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut [Hit], ids: &[u32]) {
+fn leaf_step<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut Table, ids: &[u32]) {
     let t0 = ctx.clock();
-    if ctx.parallel && rays.len() >= ctx.opts.parallel.data_min_rays {
+    if ctx.parallel && rays.len() >= ctx.data_min_rays {
         parallel::leaf_par::<T>(ctx, rays, table, ids);
     } else {
         leaf::<T, _>(ctx.tris, rays, table, ids, ctx.any);
@@ -284,7 +287,7 @@ fn afra_first_left(ray: &RayRec, p: &Parts) -> bool {
         }
     }
     let left_lower = cl[axis] <= cr[axis];
-    if ray.dir[axis] >= 0.0 {
+    if ray.dir()[axis] >= 0.0 {
         left_lower
     } else {
         !left_lower
