@@ -26,6 +26,7 @@ pub mod leaf;
 pub mod options;
 pub mod parallel;
 pub mod rays;
+pub mod sampling;
 pub mod split;
 pub mod stats;
 pub mod traverse;

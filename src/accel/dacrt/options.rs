@@ -16,6 +16,9 @@ pub struct Sampling {
     pub samples: usize,
     /// Sample only nodes with more active rays than this (Nabata: 1000).
     pub min_rays: usize,
+    /// Cost of a ray/box test relative to a ray/triangle test (`C_bv / C_tri` of eq. 5),
+    /// for the skip decision of children that will be leaves.
+    pub box_cost: f32,
 }
 
 impl Sampling {
@@ -26,6 +29,7 @@ impl Sampling {
         skip: false,
         samples: 100,
         min_rays: 1000,
+        box_cost: 1.0,
     };
 
     /// All three gains: Nabata et al. 2013.
@@ -35,6 +39,7 @@ impl Sampling {
         skip: true,
         samples: 100,
         min_rays: 1000,
+        box_cost: 1.0,
     };
 
     /// Whether any gain is on.
@@ -130,7 +135,7 @@ impl DacrtOptions {
     }
 
     /// Applies overrides from `get(name)`: `RAYD_DACRT_LEAF_RAYS`, `_LEAF_TRIS`,
-    /// `_SAH_RATIO`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_SAMPLE_COST`,
+    /// `_SAH_RATIO`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_COST`,
     /// `_SAMPLE_ORDER`, `_SAMPLE_SKIP` (0/1; only where sampling is on), `_PARALLEL` (0/1),
     /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_STATS` (0/1).
     /// Unparsable values are ignored.
@@ -155,6 +160,7 @@ impl DacrtOptions {
         num(g("SAH_STOP_MAX"), &mut self.sah_stop_max);
         num(g("SAMPLES"), &mut self.sampling.samples);
         num(g("SAMPLE_MIN_RAYS"), &mut self.sampling.min_rays);
+        num(g("BOX_COST"), &mut self.sampling.box_cost);
         if self.sampling.enabled() {
             flag(g("SAMPLE_COST"), &mut self.sampling.cost);
             flag(g("SAMPLE_ORDER"), &mut self.sampling.order);

@@ -8,12 +8,11 @@
 //! - **middle**: at the centre of the centroid box; one pass.
 //! - **binned**: 32 bins (Wald 2007); one pass fills the bins, a sweep over the 31 planes
 //!   picks one — by the surface-area heuristic, or by Nabata's sampled cost (eq. 2) where
-//!   the hit probabilities of the candidate boxes are measured with sample rays — and a
-//!   second pass partitions.
+//!   the hit probabilities of the candidate boxes are measured with sample rays (see
+//!   `sampling.rs`) — and a second pass partitions.
 
 use crate::geometry::Aabb;
 
-use super::rays::{FilterBox, RayRec};
 use super::tris::TriBox;
 
 /// Number of bins of the binned splits (Áfra: 32).
@@ -294,55 +293,6 @@ pub fn sah(cands: &[Candidate], parent: &Aabb) -> Option<(usize, f32)> {
         }
     }
     best.map(|(j, c)| (j, if pa > 0.0 { c / pa } else { c }))
-}
-
-/// What the sample rays say about one pair of child boxes (Nabata Algorithm 2).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Sampled {
-    /// Sample rays entering the left box.
-    pub hits_left: u32,
-    /// Sample rays entering the right box.
-    pub hits_right: u32,
-    /// Sample rays that reach the left box first (or only the left box).
-    pub nearer_left: u32,
-    /// Sample rays that reach the right box first (or only the right box).
-    pub nearer_right: u32,
-}
-
-/// Tests the sample rays against one pair of boxes.
-pub fn sample_pair(samples: &[RayRec], left: &Aabb, right: &Aabb) -> Sampled {
-    let (fl, fr) = (FilterBox::new(left), FilterBox::new(right));
-    let mut s = Sampled::default();
-    for r in samples {
-        let dl = fl.entry(r.org(), r.dir(), r.tmax());
-        let dr = fr.entry(r.org(), r.dir(), r.tmax());
-        s.hits_left += u32::from(dl.is_some());
-        s.hits_right += u32::from(dr.is_some());
-        let (dl, dr) = (dl.unwrap_or(f32::INFINITY), dr.unwrap_or(f32::INFINITY));
-        if dl < dr {
-            s.nearer_left += 1;
-        } else if dr < dl {
-            s.nearer_right += 1;
-        }
-    }
-    s
-}
-
-/// Nabata's sampled cost (eq. 2): the plane minimising `α_L·N_L + α_R·N_R`, where `α` is the
-/// fraction of sample rays entering the candidate box; with what the samples said about it.
-pub fn sampled_cost(cands: &[Candidate], samples: &[RayRec]) -> Option<(usize, Sampled)> {
-    let mut best: Option<(usize, f32, Sampled)> = None;
-    for (j, c) in cands.iter().enumerate() {
-        if c.n_left == 0 || c.n_right == 0 {
-            continue;
-        }
-        let s = sample_pair(samples, &c.left, &c.right);
-        let cost = s.hits_left as f32 * c.n_left as f32 + s.hits_right as f32 * c.n_right as f32;
-        if best.as_ref().map_or(true, |&(_, b, _)| cost < b) {
-            best = Some((j, cost, s));
-        }
-    }
-    best.map(|(j, _, s)| (j, s))
 }
 
 #[cfg(test)]

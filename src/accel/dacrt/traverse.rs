@@ -16,7 +16,8 @@ use super::leaf::{leaf, LeafTest, Table};
 use super::options::DacrtOptions;
 use super::parallel;
 use super::rays::{filter, FilterBox, RayRec};
-use super::split::{middle, sah, sample_pair, sampled_cost, Bins, Node, Parts, Sampled};
+use super::sampling::{sample_pair, sampled_cost, Sampled};
+use super::split::{middle, sah, Bins, Node, Parts};
 use super::stats::{lap, Stats};
 use super::tris::TriData;
 
@@ -261,8 +262,8 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
     };
     let skip = match info {
         Some(si) if s.skip => [
-            2 * si.hits_left as usize > ns,
-            2 * si.hits_right as usize > ns,
+            skip_filtering(o, si.hits_left, ns, parts.mid),
+            skip_filtering(o, si.hits_right, ns, t - parts.mid),
         ],
         _ => [false, false],
     };
@@ -271,6 +272,21 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         first_left,
         skip,
     })
+}
+
+/// Nabata's criterion (eq. 5): skip a child's filtering when the fraction `α` of sample rays
+/// entering it exceeds `1 - C_bv / (n_child · C_child)`. For a child that will be split,
+/// `n_child = 2` and `C_child = C_bv`, so `α > 0.5` (eq. 6); for a child that will be a leaf
+/// (fewer triangles than `leaf_tris`), `n_child` is its triangle count and `C_child` a
+/// ray/triangle test, so unfiltered rays must be rarer still before skipping pays.
+fn skip_filtering(o: &DacrtOptions, hits: u32, samples: usize, tris: usize) -> bool {
+    let alpha = hits as f32 / samples as f32;
+    let limit = if tris < o.leaf_tris {
+        1.0 - o.sampling.box_cost / tris.max(1) as f32
+    } else {
+        0.5
+    };
+    alpha > limit
 }
 
 /// Áfra's order (after Wald et al. 2007): on the axis where the children's centres are
