@@ -36,40 +36,82 @@ use super::stats::{lap, Stats};
 use super::traverse::{step, visit, Child, Ctx};
 use super::tris::TriBox;
 
-/// Swaps `v[a..a+k]` with `v[b..b+k]` (`a + k <= b`), in parallel when longer than `grain`.
-fn swap_blocks<T: Send>(v: &mut [T], a: usize, b: usize, k: usize, grain: usize) {
-    let (lo, hi) = v.split_at_mut(b);
-    let (x, y) = (&mut lo[a..a + k], &mut hi[..k]);
-    if k < grain {
-        x.swap_with_slice(y);
-    } else {
-        x.par_chunks_mut(grain)
-            .zip(y.par_chunks_mut(grain))
-            .for_each(|(p, q)| p.swap_with_slice(q));
+/// Partitions `v` in place on several threads: `part` partitions one chunk (selected
+/// elements first) and returns how many it selected plus a summary; the summaries are
+/// combined with `merge`. Returns the total selected and the combined summary.
+///
+/// Chunks are partitioned in parallel, then the elements on the wrong side of the final
+/// boundary — unselected ones before it, selected ones after it, equally many — are paired
+/// up and swapped, in one parallel round. Every element moves at most once more than in a
+/// sequential partition (a recursive merge of halves would move up to half of them once
+/// per level).
+pub fn par_partition<T: Send, R: Send>(
+    v: &mut [T],
+    grain: usize,
+    part: impl Fn(&mut [T]) -> (usize, R) + Sync,
+    merge: impl Fn(R, R) -> R,
+) -> (usize, R) {
+    let n = v.len();
+    let pieces = 4 * rayon::current_num_threads();
+    let chunk = (n.div_ceil(pieces).max(grain).max(8) + 7) & !7;
+    if n <= chunk {
+        return part(v);
     }
-}
-
-/// After both halves of `v` (split at `mid`) were partitioned (`a` and `c` selected
-/// elements first in each), brings all selected elements to the front: the inactive tail
-/// of the left half and the active head of the right half trade places, moving only the
-/// shorter of the two.
-fn join_halves<T: Send>(v: &mut [T], mid: usize, a: usize, c: usize, grain: usize) {
-    let k = (mid - a).min(c);
-    if k > 0 {
-        swap_blocks(v, a, mid + c - k, k, grain);
+    let results: Vec<(usize, R)> = v.par_chunks_mut(chunk).map(&part).collect();
+    let m: usize = results.iter().map(|r| r.0).sum();
+    // The misplaced ranges, in position order: unselected tails inside [0, m), selected
+    // heads inside [m, n).
+    let mut wrong: Vec<(usize, usize, bool)> = Vec::new();
+    for (i, (a, _)) in results.iter().enumerate() {
+        let (s, e) = (i * chunk, ((i + 1) * chunk).min(n));
+        let (tail_lo, tail_hi) = (s + a, e.min(m));
+        if tail_lo < tail_hi {
+            wrong.push((tail_lo, tail_hi, false));
+        }
+        let (head_lo, head_hi) = (s.max(m), s + a);
+        if head_lo < head_hi {
+            wrong.push((head_lo, head_hi, true));
+        }
     }
+    // Carve the slice into those ranges (disjoint, ascending), then pair them up.
+    let mut lows: Vec<&mut [T]> = Vec::new();
+    let mut highs: Vec<&mut [T]> = Vec::new();
+    let mut rest = v;
+    let mut at = 0;
+    for &(lo, hi, selected) in &wrong {
+        let (_, r) = rest.split_at_mut(lo - at);
+        let (mid, r) = r.split_at_mut(hi - lo);
+        rest = r;
+        at = hi;
+        if selected {
+            highs.push(mid);
+        } else {
+            lows.push(mid);
+        }
+    }
+    let mut pairs: Vec<(&mut [T], &mut [T])> = Vec::new();
+    let (mut li, mut hi) = (lows.into_iter(), highs.into_iter());
+    let (mut l, mut h) = (li.next(), hi.next());
+    while let (Some(a), Some(b)) = (l.take(), h.take()) {
+        let k = a.len().min(b.len()).min(grain.max(8));
+        let (a0, a1) = a.split_at_mut(k);
+        let (b0, b1) = b.split_at_mut(k);
+        pairs.push((a0, b0));
+        l = if a1.is_empty() { li.next() } else { Some(a1) };
+        h = if b1.is_empty() { hi.next() } else { Some(b1) };
+    }
+    pairs.into_par_iter().for_each(|(a, b)| a.swap_with_slice(b));
+    let summary = results
+        .into_iter()
+        .map(|r| r.1)
+        .reduce(merge)
+        .expect("at least one chunk");
+    (m, summary)
 }
 
 /// [`filter`] on several threads, in pieces of at least `grain` rays.
 pub fn filter_par(rays: &mut [RayRec], b: &FilterBox, grain: usize) -> usize {
-    if rays.len() <= grain.max(16) {
-        return filter(rays, b);
-    }
-    let mid = (rays.len() / 2) & !7;
-    let (l, r) = rays.split_at_mut(mid);
-    let (a, c) = rayon::join(|| filter_par(l, b, grain), || filter_par(r, b, grain));
-    join_halves(rays, mid, a, c, grain);
-    a + c
+    par_partition(rays, grain, |c| (filter(c, b), ()), |_, _| ()).0
 }
 
 /// [`partition_acc`] on several threads.
@@ -79,19 +121,20 @@ fn partition_par(
     left: &(impl Fn(&TriBox) -> bool + Sync),
     grain: usize,
 ) -> (usize, Acc, Acc) {
-    if ids.len() <= grain.max(2) {
-        return partition_acc(boxes, ids, left);
-    }
-    let mid = ids.len() / 2;
-    let (l, r) = ids.split_at_mut(mid);
-    let ((a, mut al, mut ar), (c, cl, cr)) = rayon::join(
-        || partition_par(boxes, l, left, grain),
-        || partition_par(boxes, r, left, grain),
+    let (m, (l, r)) = par_partition(
+        ids,
+        grain,
+        |c| {
+            let (m, l, r) = partition_acc(boxes, c, left);
+            (m, (l, r))
+        },
+        |(mut l, mut r), (l2, r2)| {
+            l.merge(&l2);
+            r.merge(&r2);
+            (l, r)
+        },
     );
-    join_halves(ids, mid, a, c, grain);
-    al.merge(&cl);
-    ar.merge(&cr);
-    (a + c, al, ar)
+    (m, l, r)
 }
 
 fn parts(ids_len: usize, (mid, l, r): (usize, Acc, Acc)) -> Option<Parts> {
@@ -375,16 +418,44 @@ mod tests {
     use super::*;
 
     #[test]
-    fn join_halves_brings_selected_to_front() {
-        for (n, mid) in [(10, 5), (40_000, 20_000), (7, 3)] {
-            for (a, c) in [(0, 0), (2, 1), (mid, n - mid), (1, n - mid), (mid, 0)] {
-                // Encode "selected" as true.
-                let mut v: Vec<bool> = (0..n)
-                    .map(|i| if i < mid { i < a } else { i - mid < c })
-                    .collect();
-                join_halves(&mut v, mid, a, c, 1000);
-                assert!(v[..a + c].iter().all(|&x| x), "{n} {mid} {a} {c}");
-                assert!(v[a + c..].iter().all(|&x| !x));
+    fn par_partition_brings_selected_to_front() {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap();
+        for n in [0usize, 5, 64, 1000, 40_000] {
+            for pattern in 0..4 {
+                let mut v: Vec<u32> = (0..n as u32).collect();
+                let sel = |x: u32| match pattern {
+                    0 => x % 3 == 0,
+                    1 => x < n as u32 / 2,
+                    2 => x >= n as u32 / 3,
+                    _ => (x / 100) % 2 == 1,
+                };
+                let (m, count) = pool.install(|| {
+                    par_partition(
+                        &mut v,
+                        16,
+                        |c| {
+                            let mut w = 0;
+                            for i in 0..c.len() {
+                                if sel(c[i]) {
+                                    c.swap(w, i);
+                                    w += 1;
+                                }
+                            }
+                            (w, w)
+                        },
+                        |a, b| a + b,
+                    )
+                });
+                assert_eq!(m, count);
+                assert_eq!(m, (0..n as u32).filter(|&x| sel(x)).count());
+                assert!(v[..m].iter().all(|&x| sel(x)), "{n} {pattern}");
+                assert!(v[m..].iter().all(|&x| !sel(x)));
+                let mut s = v.clone();
+                s.sort();
+                assert!(s.iter().enumerate().all(|(i, &x)| i as u32 == x));
             }
         }
     }
