@@ -7,6 +7,7 @@
 
 pub mod brute;
 pub mod bvh;
+pub mod dacrt;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod mbvh;
@@ -30,16 +31,22 @@ pub enum AccelKind {
     Bvh2,
     /// Intel Embree 3 (cargo feature `embree`): the peer.
     Embree,
+    /// Divide-and-conquer ray tracing, no acceleration structure (Áfra 2012).
+    Dacrt,
+    /// DACRT with ray sampling (Nabata et al. 2013).
+    DacrtSampled,
 }
 
 impl AccelKind {
     /// Every kind, in the order they are listed to users.
-    pub const ALL: [AccelKind; 6] = [
+    pub const ALL: [AccelKind; 8] = [
         AccelKind::Auto,
         AccelKind::Brute,
         AccelKind::Mbvh8,
         AccelKind::Mbvh4,
         AccelKind::Bvh2,
+        AccelKind::Dacrt,
+        AccelKind::DacrtSampled,
         AccelKind::Embree,
     ];
 
@@ -52,6 +59,8 @@ impl AccelKind {
             AccelKind::Mbvh4 => "mbvh4",
             AccelKind::Bvh2 => "bvh2",
             AccelKind::Embree => "embree",
+            AccelKind::Dacrt => "dacrt",
+            AccelKind::DacrtSampled => "dacrt-sampled",
         }
     }
 
@@ -212,6 +221,11 @@ pub fn build(
         }
         AccelKind::Mbvh4 => Ok(Box::new(mbvh::Mbvh4Core::build(triangles, options))),
         AccelKind::Bvh2 => Ok(Box::new(packet::Bvh2Packet::build(triangles, options))),
+        AccelKind::Dacrt => Ok(Box::new(dacrt::Dacrt::new(triangles, options.precision))),
+        AccelKind::DacrtSampled => Ok(Box::new(dacrt::Dacrt::sampled(
+            triangles,
+            options.precision,
+        ))),
         #[cfg(feature = "embree")]
         AccelKind::Embree => Ok(Box::new(embree::Embree::new(triangles, options)?)),
         #[cfg(not(feature = "embree"))]

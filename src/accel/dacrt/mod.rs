@@ -1,0 +1,225 @@
+//! Divide-and-conquer ray tracing: no acceleration structure, the triangles are partitioned
+//! while the rays are traced (Áfra 2012, "Incoherent ray tracing without acceleration
+//! structures"; Nabata et al. 2013, "Efficient divide-and-conquer ray tracing using ray
+//! sampling").
+//!
+//! - `dacrt` is Áfra's method: rays in one array of 32-byte records filtered by reordering
+//!   them in place ([`rays`]); triangle boxes precomputed once per frame with the
+//!   complementary data that rebuilds each triangle ([`tris`]); middle or 32-bin SAH
+//!   partitioning chosen by the ratio of active rays to triangles ([`split`]); naive leaves
+//!   ([`leaf`]); ordered traversal by the first active ray ([`traverse`]).
+//! - `dacrt-sampled` adds Nabata's ray sampling: 100 sample rays per node with more than
+//!   1000 active rays choose the split plane by the sampled cost, the order of the
+//!   children, and whether a child needs its rays filtered at all ([`options::Sampling`]).
+//!
+//! Both share the same code and run on the rayon pool they are called in, with the
+//! parallel scheme of [`parallel`]. "Building" one is the per-frame precompute only, so a
+//! new frame (new positions for the same or other triangles) is simply a new build.
+//!
+//! Memory during a trace (T triangles, R rays): 48·T for the precompute (held between
+//! traces), 32·R for the ray records, 4·T for the one shared id array, plus the fork copies
+//! (at most [`options::Parallelism::fork_budget`]·R records at 52 bytes). The hit slots are
+//! the caller's output array, used as scratch while tracing.
+
+pub mod lanes;
+pub mod leaf;
+pub mod options;
+pub mod parallel;
+pub mod rays;
+pub mod sampling;
+pub mod split;
+pub mod stats;
+pub mod traverse;
+pub mod tris;
+
+use std::sync::atomic::{AtomicIsize, AtomicU32};
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::{Intersector, Precision, Query};
+use crate::geometry::{Hit, Ray, Triangle};
+
+pub use options::{DacrtOptions, Parallelism, Sampling};
+
+use leaf::{LeafTest, Moller, Table, Watertight};
+use rays::{RayRec, SLOT_MASK};
+use split::Node;
+use stats::Stats;
+use traverse::{step, Ctx};
+use tris::TriData;
+
+/// A DACRT accelerator: the frame's triangle precompute and the traversal's settings.
+pub struct Dacrt {
+    name: &'static str,
+    tris: TriData,
+    precision: Precision,
+    options: DacrtOptions,
+}
+
+impl Dacrt {
+    /// Áfra's method over `triangles`, with the `RAYD_DACRT_*` overrides of the
+    /// environment.
+    pub fn new(triangles: &[Triangle], precision: Precision) -> Dacrt {
+        Dacrt::with_options(
+            "dacrt",
+            triangles,
+            precision,
+            DacrtOptions::afra().with_env(),
+        )
+    }
+
+    /// Nabata's method over `triangles`, with the environment's overrides.
+    pub fn sampled(triangles: &[Triangle], precision: Precision) -> Dacrt {
+        Dacrt::with_options(
+            "dacrt-sampled",
+            triangles,
+            precision,
+            DacrtOptions::nabata().with_env(),
+        )
+    }
+
+    /// Either method with explicit settings (`name` is what [`Intersector::name`] reports).
+    pub fn with_options(
+        name: &'static str,
+        triangles: &[Triangle],
+        precision: Precision,
+        options: DacrtOptions,
+    ) -> Dacrt {
+        Dacrt {
+            name,
+            tris: TriData::new(triangles),
+            precision,
+            options,
+        }
+    }
+
+    /// The settings in use.
+    pub fn options(&self) -> &DacrtOptions {
+        &self.options
+    }
+
+    /// Traces one batch of at most `SLOT_MASK + 1` rays; `finish` writes the miss records
+    /// (not needed when only occlusion is asked for).
+    fn batch<T: LeafTest>(&self, rays: &[Ray], hits: &mut [Hit], any: bool, finish: bool) {
+        let stats = self.options.stats.then(Stats::default);
+        let t0 = Instant::now();
+        // Hit slots hold the best hit so far (t starts at tmax); records carry the slot.
+        hits.par_iter_mut().zip(rays.par_iter()).for_each(|(h, r)| {
+            *h = Hit {
+                t: r.tmax,
+                prim: u32::MAX,
+                u: 0.0,
+                v: 0.0,
+            }
+        });
+        // `tmin` is not in the records; rays whose `tmin` is not 0 find it here.
+        let tmin: Vec<f32> = if rays.par_iter().any(|r| r.tmin != 0.0) {
+            rays.par_iter().map(|r| r.tmin).collect()
+        } else {
+            Vec::new()
+        };
+        let live = self.tris.live();
+        if live > 0 && !rays.is_empty() {
+            let mut recs: Vec<RayRec> = rays
+                .par_iter()
+                .enumerate()
+                .map(|(i, r)| {
+                    let mut rec = RayRec::new(r, i as u32);
+                    // Empty (or NaN) intervals never hit: such rays start inactive.
+                    if !interval_nonempty(r) {
+                        rec.set_tmax(f32::NEG_INFINITY);
+                    }
+                    rec
+                })
+                .collect();
+            let threads = rayon::current_num_threads();
+            let p = &self.options.parallel;
+            let parallel = p.enabled && threads > 1;
+            let budget = (p.fork_budget as f64 * rays.len() as f64) as usize;
+            let ctx = Ctx {
+                tris: &self.tris,
+                opts: &self.options,
+                any,
+                stats: stats.as_ref(),
+                parallel,
+                budget: AtomicIsize::new(budget as isize),
+                pending: (0..threads).map(|_| AtomicU32::new(0)).collect(),
+                data_min_rays: p.data_min_rays.min((budget / 4).max(4 * p.fork_min_rays)),
+            };
+            let root = Node {
+                bounds: self.tris.bounds,
+                cents: self.tris.centroids,
+            };
+            let n = ctx.filter(&mut recs, &root.bounds);
+            if n > 0 {
+                let mut ids = vec![0u32; live];
+                self.tris.fill_ids(&mut ids);
+                let mut table = Table {
+                    hits: &mut *hits,
+                    tmin: &tmin,
+                };
+                step::<T>(&ctx, &mut recs[..n], &mut table, &mut ids, &root, 0);
+            }
+        }
+        if finish {
+            // Slots that found nothing become the contract's miss record.
+            hits.par_iter_mut().for_each(|h| {
+                if h.prim == u32::MAX {
+                    *h = Hit::MISS;
+                }
+            });
+        }
+        if let Some(s) = &stats {
+            eprintln!(
+                "{}",
+                s.summary(self.name, rays.len(), t0.elapsed().as_secs_f64())
+            );
+        }
+    }
+
+    fn trace_all<T: LeafTest>(&self, rays: &[Ray], hits: &mut [Hit], any: bool, finish: bool) {
+        assert_eq!(rays.len(), hits.len(), "one hit record per ray");
+        let per = SLOT_MASK as usize + 1;
+        for (r, h) in rays.chunks(per).zip(hits.chunks_mut(per)) {
+            self.batch::<T>(r, h, any, finish);
+        }
+    }
+
+    fn run(&self, rays: &[Ray], hits: &mut [Hit], any: bool, finish: bool) {
+        match self.precision {
+            Precision::Fast => self.trace_all::<Moller>(rays, hits, any, finish),
+            Precision::Watertight => self.trace_all::<Watertight>(rays, hits, any, finish),
+        }
+    }
+}
+
+/// Whether `[tmin, tmax]` holds any `t` (false for NaN bounds).
+fn interval_nonempty(r: &Ray) -> bool {
+    matches!(
+        r.tmin.partial_cmp(&r.tmax),
+        Some(std::cmp::Ordering::Less | std::cmp::Ordering::Equal)
+    )
+}
+
+impl Intersector for Dacrt {
+    fn name(&self) -> &'static str {
+        self.name
+    }
+
+    fn trace(&self, rays: &[Ray], query: Query, hits: &mut [Hit]) {
+        self.run(rays, hits, query == Query::Any, true);
+    }
+
+    fn occluded(&self, rays: &[Ray], out: &mut [u8]) {
+        let mut hits = vec![Hit::MISS; rays.len()];
+        self.run(rays, &mut hits, true, false);
+        for (o, h) in out.iter_mut().zip(&hits) {
+            *o = u8::from(h.prim != u32::MAX);
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        self.tris.bytes()
+    }
+}

@@ -1,0 +1,203 @@
+//! The tunables of both DACRT accelerators, with the papers' values as defaults and an
+//! environment override for each, so that every gain can be measured on its own from the
+//! command line (`RAYD_DACRT_SAMPLE_SKIP=0 rayd bench ...`) without a rebuild.
+
+/// Which of Nabata et al.'s three gains are on (each can be measured alone, as §5 does).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sampling {
+    /// Choose the split plane by the sampled cost (eq. 2) instead of the SAH.
+    pub cost: bool,
+    /// Visit first the child that more sample rays reach first (§4.3).
+    pub order: bool,
+    /// Give a child its parent's rays unfiltered when more than half the sample rays enter
+    /// it (eq. 5–6).
+    pub skip: bool,
+    /// Sample rays per node (Nabata: 100).
+    pub samples: usize,
+    /// Sample only nodes with more active rays than this (Nabata: 1000).
+    pub min_rays: usize,
+    /// Cost of a ray/box test relative to a ray/triangle test (`C_bv / C_tri` of eq. 5),
+    /// for the skip decision of children that will be leaves.
+    pub box_cost: f32,
+}
+
+impl Sampling {
+    /// No sampling: Áfra 2012.
+    pub const OFF: Sampling = Sampling {
+        cost: false,
+        order: false,
+        skip: false,
+        samples: 100,
+        min_rays: 1000,
+        box_cost: 1.0,
+    };
+
+    /// All three gains: Nabata et al. 2013.
+    pub const ALL: Sampling = Sampling {
+        cost: true,
+        order: true,
+        skip: true,
+        samples: 100,
+        min_rays: 1000,
+        box_cost: 1.0,
+    };
+
+    /// Whether any gain is on.
+    pub fn enabled(&self) -> bool {
+        self.cost || self.order || self.skip
+    }
+}
+
+/// How the recursion uses several threads (see `parallel.rs`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Parallelism {
+    /// Master switch (off: one thread whatever the pool).
+    pub enabled: bool,
+    /// Nodes with at least this many active rays filter them data-parallel, in place (the
+    /// trace lowers it to a quarter of the fork budget when that is smaller, so that forks
+    /// are small enough to fit several at once).
+    pub data_min_rays: usize,
+    /// Nodes with fewer than `data_min_rays` but at least this many active rays hand their
+    /// second child to another thread (with a copy of its rays).
+    pub fork_min_rays: usize,
+    /// Ray records that forks may copy at once, as a fraction of the batch.
+    pub fork_budget: f32,
+    /// Triangle ranges at least this long are binned and partitioned data-parallel.
+    pub data_min_tris: usize,
+    /// Data-parallel passes split their ranges down to pieces of this many elements.
+    pub grain: usize,
+}
+
+impl Default for Parallelism {
+    fn default() -> Self {
+        Parallelism {
+            enabled: true,
+            data_min_rays: 1 << 16,
+            fork_min_rays: 1 << 10,
+            fork_budget: 0.125,
+            data_min_tris: 1 << 13,
+            grain: 1 << 14,
+        }
+    }
+}
+
+/// Every tunable of the traversal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DacrtOptions {
+    /// A node with fewer active rays than this is a leaf (Áfra: 8).
+    pub leaf_rays: usize,
+    /// A node with fewer triangles than this is a leaf (Áfra: 8).
+    pub leaf_tris: usize,
+    /// Above this ratio of active rays to triangles a node is split by binning (SAH or the
+    /// sampled cost), below it at the middle (Áfra: 1–2 best; Nabata: 1.5).
+    pub sah_ratio: f32,
+    /// Cost of a traversal step relative to a ray/triangle test, for the SAH's leaf
+    /// decision.
+    pub traversal_cost: f32,
+    /// The SAH may end the recursion only for nodes of at most this many triangles (a
+    /// greedy SAH stop on a big node would make a huge leaf).
+    pub sah_stop_max: usize,
+    /// Nabata's gains.
+    pub sampling: Sampling,
+    /// Threads.
+    pub parallel: Parallelism,
+    /// Collect the time split (filtering, intersection, partitioning) and print it to stderr
+    /// after every trace.
+    pub stats: bool,
+}
+
+impl DacrtOptions {
+    /// Áfra 2012.
+    pub fn afra() -> DacrtOptions {
+        DacrtOptions {
+            leaf_rays: 8,
+            leaf_tris: 8,
+            sah_ratio: 1.5,
+            traversal_cost: 1.0,
+            sah_stop_max: 32,
+            sampling: Sampling::OFF,
+            parallel: Parallelism::default(),
+            stats: false,
+        }
+    }
+
+    /// Nabata et al. 2013.
+    pub fn nabata() -> DacrtOptions {
+        DacrtOptions {
+            sampling: Sampling::ALL,
+            ..DacrtOptions::afra()
+        }
+    }
+
+    /// Applies the `RAYD_DACRT_*` environment overrides (see [`DacrtOptions::apply`]).
+    pub fn with_env(self) -> DacrtOptions {
+        self.apply(|k| std::env::var(k).ok())
+    }
+
+    /// Applies overrides from `get(name)`: `RAYD_DACRT_LEAF_RAYS`, `_LEAF_TRIS`,
+    /// `_SAH_RATIO`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_COST`,
+    /// `_SAMPLE_ORDER`, `_SAMPLE_SKIP` (0/1; only where sampling is on), `_PARALLEL` (0/1),
+    /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_STATS` (0/1).
+    /// Unparsable values are ignored.
+    pub fn apply(mut self, get: impl Fn(&str) -> Option<String>) -> DacrtOptions {
+        fn num<T: std::str::FromStr>(v: Option<String>, into: &mut T) {
+            if let Some(x) = v.and_then(|s| s.trim().parse().ok()) {
+                *into = x;
+            }
+        }
+        fn flag(v: Option<String>, into: &mut bool) {
+            match v.as_deref().map(str::trim) {
+                Some("0") | Some("false") | Some("off") => *into = false,
+                Some("1") | Some("true") | Some("on") => *into = true,
+                _ => {}
+            }
+        }
+        let g = |k: &str| get(&format!("RAYD_DACRT_{k}"));
+        num(g("LEAF_RAYS"), &mut self.leaf_rays);
+        num(g("LEAF_TRIS"), &mut self.leaf_tris);
+        num(g("SAH_RATIO"), &mut self.sah_ratio);
+        num(g("TRAVERSAL_COST"), &mut self.traversal_cost);
+        num(g("SAH_STOP_MAX"), &mut self.sah_stop_max);
+        num(g("SAMPLES"), &mut self.sampling.samples);
+        num(g("SAMPLE_MIN_RAYS"), &mut self.sampling.min_rays);
+        num(g("BOX_COST"), &mut self.sampling.box_cost);
+        if self.sampling.enabled() {
+            flag(g("SAMPLE_COST"), &mut self.sampling.cost);
+            flag(g("SAMPLE_ORDER"), &mut self.sampling.order);
+            flag(g("SAMPLE_SKIP"), &mut self.sampling.skip);
+        }
+        flag(g("PARALLEL"), &mut self.parallel.enabled);
+        num(g("DATA_MIN_RAYS"), &mut self.parallel.data_min_rays);
+        num(g("FORK_MIN_RAYS"), &mut self.parallel.fork_min_rays);
+        num(g("FORK_BUDGET"), &mut self.parallel.fork_budget);
+        num(g("DATA_MIN_TRIS"), &mut self.parallel.data_min_tris);
+        num(g("GRAIN"), &mut self.parallel.grain);
+        flag(g("STATS"), &mut self.stats);
+        self.leaf_rays = self.leaf_rays.max(1);
+        self.leaf_tris = self.leaf_tris.max(2);
+        self.sampling.samples = self.sampling.samples.max(1);
+        self.parallel.grain = self.parallel.grain.max(8);
+        self
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overrides_apply_and_sampling_switches_only_where_on() {
+        let env = |k: &str| match k {
+            "RAYD_DACRT_LEAF_RAYS" => Some("16".to_string()),
+            "RAYD_DACRT_SAMPLE_SKIP" => Some("0".to_string()),
+            "RAYD_DACRT_SAH_RATIO" => Some("nonsense".to_string()),
+            _ => None,
+        };
+        let a = DacrtOptions::afra().apply(env);
+        assert_eq!(a.leaf_rays, 16);
+        assert_eq!(a.sah_ratio, 1.5);
+        assert!(!a.sampling.enabled());
+        let n = DacrtOptions::nabata().apply(env);
+        assert!(n.sampling.cost && n.sampling.order && !n.sampling.skip);
+    }
+}

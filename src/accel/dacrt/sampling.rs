@@ -1,0 +1,222 @@
+//! Ray sampling (Nabata et al. 2013 §4.1–4.4): a few active rays are tested against the
+//! candidate child boxes of a node, and what they say — how many enter each box, and which
+//! box of a pair each reaches first — chooses the split plane (eq. 2), the order of the
+//! children, and whether a child needs its rays filtered at all (eq. 5–6).
+//!
+//! One sample ray is tested against 8 boxes per SIMD step: the 31 left and 31 right boxes
+//! of a binning are laid out so that the left and right box of plane `j` share a lane, and
+//! the per-plane counts stay in vector registers' worth of arrays.
+
+use crate::geometry::Aabb;
+use crate::simd::{self, FloatV, IntV, Kernel, Select, Simd};
+
+use super::rays::{FilterBox, RayRec, T_SLACK};
+use super::split::Candidate;
+
+/// What the sample rays say about one pair of child boxes (Nabata Algorithm 2).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sampled {
+    /// Sample rays entering the left box.
+    pub hits_left: u32,
+    /// Sample rays entering the right box.
+    pub hits_right: u32,
+    /// Sample rays that reach the left box first (or only the left box).
+    pub nearer_left: u32,
+    /// Sample rays that reach the right box first (or only the right box).
+    pub nearer_right: u32,
+}
+
+/// Boxes per group (one SIMD vector).
+const W: usize = 8;
+
+/// Up to `G · 8` pairs of boxes in SoA groups: `lo[g][side][axis][lane]`,
+/// `hi[g][side][axis][lane]` for the left (`side 0`) and right (`side 1`) box of each
+/// pair, and which lanes hold a box at all (an empty box is never entered; no placeholder
+/// coordinates could say so, since the slab test treats an inverted box as a box).
+struct Pairs {
+    lo: Vec<[[[f32; W]; 3]; 2]>,
+    hi: Vec<[[[f32; W]; 3]; 2]>,
+    valid: Vec<[u32; 2]>,
+}
+
+impl Pairs {
+    fn new(pairs: &[(Aabb, Aabb)]) -> Pairs {
+        let groups = pairs.len().div_ceil(W);
+        // Padding lanes hold an empty box: no ray enters it.
+        let mut lo = vec![[[[0.0; W]; 3]; 2]; groups];
+        let mut hi = vec![[[[0.0; W]; 3]; 2]; groups];
+        let mut valid = vec![[0u32; 2]; groups];
+        for (j, (l, r)) in pairs.iter().enumerate() {
+            for (side, b) in [l, r].into_iter().enumerate() {
+                if b.is_empty() {
+                    continue;
+                }
+                let f = FilterBox::new(b);
+                for k in 0..3 {
+                    lo[j / W][side][k][j % W] = f.min[k];
+                    hi[j / W][side][k][j % W] = f.max[k];
+                }
+                valid[j / W][side] |= 1 << (j % W);
+            }
+        }
+        Pairs { lo, hi, valid }
+    }
+}
+
+/// The counting kernel: every sample ray against every pair.
+struct Count<'a> {
+    pairs: &'a Pairs,
+    samples: &'a [RayRec],
+}
+
+impl Kernel for Count<'_> {
+    type Output = Vec<[[i32; W]; 4]>;
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> Self::Output {
+        let groups = self.pairs.lo.len();
+        let mut counts = vec![[[0i32; W]; 4]; groups];
+        let zero = s.splat_f8(0.0);
+        let inf = s.splat_f8(f32::INFINITY);
+        let one = s.splat_i8(1);
+        let nil = s.splat_i8(0);
+        let slack = s.splat_f8(1.0 + T_SLACK);
+        for r in self.samples {
+            let (o, d) = (r.org(), r.dir());
+            let org = [s.splat_f8(o[0]), s.splat_f8(o[1]), s.splat_f8(o[2])];
+            let inv = [
+                s.splat_f8(1.0 / d[0]),
+                s.splat_f8(1.0 / d[1]),
+                s.splat_f8(1.0 / d[2]),
+            ];
+            let far0 = s.splat_f8(r.tmax()) * slack;
+            for (g, c) in counts.iter_mut().enumerate() {
+                let mut near = [zero; 2];
+                let mut hit = [s.mask8(0); 2];
+                for side in 0..2 {
+                    let mut n = zero;
+                    let mut f = far0;
+                    for k in 0..3 {
+                        let t0 = (s.load_f8(&self.pairs.lo[g][side][k]) - org[k]) * inv[k];
+                        let t1 = (s.load_f8(&self.pairs.hi[g][side][k]) - org[k]) * inv[k];
+                        n = t0.min(t1).max(n);
+                        f = t0.max(t1).min(f);
+                    }
+                    hit[side] = n.le(f * slack) & s.mask8(self.pairs.valid[g][side]);
+                    near[side] = hit[side].select(n, inf);
+                }
+                let add = |acc: &mut [i32; W], m: S::M8| {
+                    *acc = (s.load_i8(acc) + m.select(one, nil)).to_array();
+                };
+                add(&mut c[0], hit[0]);
+                add(&mut c[1], hit[1]);
+                add(&mut c[2], near[0].lt(near[1]));
+                add(&mut c[3], near[1].lt(near[0]));
+            }
+        }
+        counts
+    }
+}
+
+/// Tests `samples` against every pair of boxes; one [`Sampled`] per pair.
+pub fn sample_pairs(samples: &[RayRec], pairs: &[(Aabb, Aabb)]) -> Vec<Sampled> {
+    let p = Pairs::new(pairs);
+    let counts = simd::dispatch(
+        simd::selected(),
+        Count {
+            pairs: &p,
+            samples,
+        },
+    );
+    (0..pairs.len())
+        .map(|j| {
+            let c = &counts[j / W];
+            let l = j % W;
+            Sampled {
+                hits_left: c[0][l] as u32,
+                hits_right: c[1][l] as u32,
+                nearer_left: c[2][l] as u32,
+                nearer_right: c[3][l] as u32,
+            }
+        })
+        .collect()
+}
+
+/// Tests the sample rays against one pair of boxes.
+pub fn sample_pair(samples: &[RayRec], left: &Aabb, right: &Aabb) -> Sampled {
+    sample_pairs(samples, &[(*left, *right)])[0]
+}
+
+/// Nabata's sampled cost (eq. 2): the plane minimising `α_L·N_L + α_R·N_R`, where `α` is the
+/// fraction of sample rays entering the candidate box; with what the samples said about it.
+pub fn sampled_cost(cands: &[Candidate], samples: &[RayRec]) -> Option<(usize, Sampled)> {
+    let pairs: Vec<(Aabb, Aabb)> = cands.iter().map(|c| (c.left, c.right)).collect();
+    let sampled = sample_pairs(samples, &pairs);
+    let mut best: Option<(usize, f32, Sampled)> = None;
+    for (j, (c, s)) in cands.iter().zip(sampled).enumerate() {
+        if c.n_left == 0 || c.n_right == 0 {
+            continue;
+        }
+        let cost = s.hits_left as f32 * c.n_left as f32 + s.hits_right as f32 * c.n_right as f32;
+        if best.as_ref().map_or(true, |&(_, b, _)| cost < b) {
+            best = Some((j, cost, s));
+        }
+    }
+    best.map(|(j, _, s)| (j, s))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+
+    fn ray(org: [f32; 3], dir: [f32; 3]) -> RayRec {
+        RayRec::new(
+            &Ray {
+                org,
+                tmin: 0.0,
+                dir,
+                tmax: f32::INFINITY,
+            },
+            0,
+        )
+    }
+
+    #[test]
+    fn counts_match_the_scalar_box_test() {
+        let bx = |x: f32| Aabb {
+            min: [x, 0.0, 0.0],
+            max: [x + 1.0, 1.0, 1.0],
+        };
+        let pairs: Vec<(Aabb, Aabb)> = (0..11)
+            .map(|i| (bx(i as f32), bx(i as f32 + 0.5)))
+            .chain([(Aabb::EMPTY, bx(3.0))])
+            .collect();
+        let samples: Vec<RayRec> = (0..37)
+            .map(|i| {
+                let y = (i % 5) as f32 * 0.3;
+                ray([-2.0 + (i % 7) as f32, y, 0.5], [if i % 2 == 0 { 1.0 } else { -1.0 }, 0.0, 0.0])
+            })
+            .collect();
+        let got = sample_pairs(&samples, &pairs);
+        for (p, g) in pairs.iter().zip(&got) {
+            let mut want = Sampled::default();
+            for r in &samples {
+                let e = |b: &Aabb| {
+                    if b.is_empty() {
+                        None
+                    } else {
+                        FilterBox::new(b).entry(r.org(), r.dir(), r.tmax())
+                    }
+                };
+                let (dl, dr) = (e(&p.0), e(&p.1));
+                want.hits_left += u32::from(dl.is_some());
+                want.hits_right += u32::from(dr.is_some());
+                let (dl, dr) = (dl.unwrap_or(f32::INFINITY), dr.unwrap_or(f32::INFINITY));
+                want.nearer_left += u32::from(dl < dr);
+                want.nearer_right += u32::from(dr < dl);
+            }
+            assert_eq!(*g, want, "{p:?}");
+        }
+    }
+}

@@ -1,0 +1,373 @@
+//! Triangle partitioning (Áfra 2012 §3.2; Nabata et al. 2013 §4.2): the two children of a
+//! node are made by partitioning its slice of the id array in place.
+//!
+//! Both methods split the *centroids of the triangle boxes* on the axis where the node's
+//! centroid box is widest, and both compute each child's box and centroid box while they
+//! sweep, so that no later pass over the triangles is needed:
+//!
+//! - **middle**: at the centre of the centroid box; one pass.
+//! - **binned**: 32 bins (Wald 2007); one pass fills the bins, a sweep over the 31 planes
+//!   picks one — by the surface-area heuristic, or by Nabata's sampled cost (eq. 2) where
+//!   the hit probabilities of the candidate boxes are measured with sample rays (see
+//!   `sampling.rs`) — and a second pass partitions.
+
+use crate::geometry::Aabb;
+
+use super::tris::TriBox;
+
+/// Number of bins of the binned splits (Áfra: 32).
+pub const BINS: usize = 32;
+
+/// What a traversal step knows about a set of triangles.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    /// Union of the triangles' boxes.
+    pub bounds: Aabb,
+    /// Bounds of the triangles' box centroids.
+    pub cents: Aabb,
+}
+
+/// A partition: `ids[..mid]` went left, `ids[mid..]` right.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Parts {
+    /// Number of triangles on the left.
+    pub mid: usize,
+    /// The left child.
+    pub left: Node,
+    /// The right child.
+    pub right: Node,
+}
+
+/// The axis of the widest centroid extent and that extent.
+pub fn split_axis(cents: &Aabb) -> (usize, f32) {
+    let e = cents.extent();
+    let axis = if e[0] >= e[1] && e[0] >= e[2] {
+        0
+    } else if e[1] >= e[2] {
+        1
+    } else {
+        2
+    };
+    (axis, e[axis])
+}
+
+/// Running bounds of one side of a partition: the triangle boxes' union and their
+/// centroids' bounds.
+#[derive(Clone, Copy, Debug)]
+pub struct Acc {
+    lo: [f32; 4],
+    hi: [f32; 4],
+    clo: [f32; 4],
+    chi: [f32; 4],
+}
+
+impl Acc {
+    /// Nothing yet.
+    pub const EMPTY: Acc = Acc {
+        lo: [f32::INFINITY; 4],
+        hi: [f32::NEG_INFINITY; 4],
+        clo: [f32::INFINITY; 4],
+        chi: [f32::NEG_INFINITY; 4],
+    };
+
+    /// Adds one triangle box.
+    #[inline(always)]
+    pub fn add(&mut self, b: &TriBox) {
+        for k in 0..4 {
+            let c = 0.5 * b.min[k] + 0.5 * b.max[k];
+            self.lo[k] = self.lo[k].min(b.min[k]);
+            self.hi[k] = self.hi[k].max(b.max[k]);
+            self.clo[k] = self.clo[k].min(c);
+            self.chi[k] = self.chi[k].max(c);
+        }
+    }
+
+    /// Adds another accumulator.
+    #[inline(always)]
+    pub fn merge(&mut self, o: &Acc) {
+        for k in 0..4 {
+            self.lo[k] = self.lo[k].min(o.lo[k]);
+            self.hi[k] = self.hi[k].max(o.hi[k]);
+            self.clo[k] = self.clo[k].min(o.clo[k]);
+            self.chi[k] = self.chi[k].max(o.chi[k]);
+        }
+    }
+
+    fn bounds(&self) -> Aabb {
+        Aabb {
+            min: [self.lo[0], self.lo[1], self.lo[2]],
+            max: [self.hi[0], self.hi[1], self.hi[2]],
+        }
+    }
+
+    /// The node these bounds describe.
+    pub fn node(&self) -> Node {
+        Node {
+            bounds: self.bounds(),
+            cents: Aabb {
+                min: [self.clo[0], self.clo[1], self.clo[2]],
+                max: [self.chi[0], self.chi[1], self.chi[2]],
+            },
+        }
+    }
+}
+
+/// Partitions `ids` in place by `left(box)` (those first), accumulating both sides' boxes;
+/// returns the size of the left side and both accumulators.
+#[inline(always)]
+pub fn partition_acc(
+    boxes: &[TriBox],
+    ids: &mut [u32],
+    left: impl Fn(&TriBox) -> bool,
+) -> (usize, Acc, Acc) {
+    let mut l = Acc::EMPTY;
+    let mut r = Acc::EMPTY;
+    let mut w = 0;
+    for i in 0..ids.len() {
+        let id = ids[i];
+        let b = &boxes[id as usize];
+        if left(b) {
+            l.add(b);
+            ids.swap(w, i);
+            w += 1;
+        } else {
+            r.add(b);
+        }
+    }
+    (w, l, r)
+}
+
+#[inline(always)]
+fn partition_by(boxes: &[TriBox], ids: &mut [u32], left: impl Fn(&TriBox) -> bool) -> Parts {
+    let (mid, l, r) = partition_acc(boxes, ids, left);
+    Parts {
+        mid,
+        left: l.node(),
+        right: r.node(),
+    }
+}
+
+/// The middle plane of a node: axis, pivot, and whether the comparison is `<=` (when the
+/// centre rounds onto the lower end). `None` when the centroids all coincide.
+pub fn middle_plane(node: &Node) -> Option<(usize, f32, bool)> {
+    let (axis, extent) = split_axis(&node.cents);
+    if extent.is_nan() || extent <= 0.0 {
+        return None;
+    }
+    let (lo, hi) = (node.cents.min[axis], node.cents.max[axis]);
+    let pivot = 0.5 * lo + 0.5 * hi;
+    Some((axis, pivot, pivot == lo))
+}
+
+/// Middle partitioning: splits the centroid box at its centre on its widest axis. `None` when
+/// the centroids all coincide (nothing to split).
+pub fn middle(boxes: &[TriBox], ids: &mut [u32], node: &Node) -> Option<Parts> {
+    let (axis, pivot, le) = middle_plane(node)?;
+    // With adjacent floats the centre may round onto the lower end; then "<=" still separates.
+    let p = if le {
+        partition_by(boxes, ids, |b| b.centroid(axis) <= pivot)
+    } else {
+        partition_by(boxes, ids, |b| b.centroid(axis) < pivot)
+    };
+    (p.mid > 0 && p.mid < ids.len()).then_some(p)
+}
+
+/// The binning of one node: per bin, the boxes and count of the triangles whose centroid
+/// falls in it.
+pub struct Bins {
+    axis: usize,
+    lo: f32,
+    scale: f32,
+    acc: [Acc; BINS],
+    count: [u32; BINS],
+}
+
+impl Bins {
+    /// The bin of a triangle box.
+    #[inline(always)]
+    pub fn bin(&self, b: &TriBox) -> usize {
+        let x = (b.centroid(self.axis) - self.lo) * self.scale;
+        // `as` saturates (and maps NaN to 0), so the clamp keeps every value in range.
+        (x as i32).clamp(0, BINS as i32 - 1) as usize
+    }
+
+    /// Empty bins over the node's centroid box. `None` when the centroids all coincide.
+    pub fn empty(node: &Node) -> Option<Bins> {
+        let (axis, extent) = split_axis(&node.cents);
+        if extent.is_nan() || extent <= 0.0 {
+            return None;
+        }
+        Some(Bins {
+            axis,
+            lo: node.cents.min[axis],
+            scale: BINS as f32 * (1.0 - 1.0 / 65536.0) / extent,
+            acc: [Acc::EMPTY; BINS],
+            count: [0; BINS],
+        })
+    }
+
+    /// Adds the triangles `ids`.
+    pub fn fill(&mut self, boxes: &[TriBox], ids: &[u32]) {
+        for &id in ids {
+            let b = &boxes[id as usize];
+            let k = self.bin(b);
+            self.acc[k].add(b);
+            self.count[k] += 1;
+        }
+    }
+
+    /// Adds another binning of the same node.
+    pub fn merge(&mut self, o: &Bins) {
+        for k in 0..BINS {
+            self.acc[k].merge(&o.acc[k]);
+            self.count[k] += o.count[k];
+        }
+    }
+
+    /// Bins `ids`. `None` when the centroids all coincide.
+    pub fn new(boxes: &[TriBox], ids: &[u32], node: &Node) -> Option<Bins> {
+        let mut bins = Bins::empty(node)?;
+        bins.fill(boxes, ids);
+        Some(bins)
+    }
+
+    /// For each plane `j` (between bin `j` and `j+1`): the left and right boxes and counts.
+    pub fn candidates(&self) -> Vec<Candidate> {
+        let mut out = Vec::with_capacity(BINS - 1);
+        let mut right = [Acc::EMPTY; BINS];
+        let mut rc = [0u32; BINS];
+        let mut a = Acc::EMPTY;
+        let mut c = 0;
+        for j in (1..BINS).rev() {
+            a.merge(&self.acc[j]);
+            c += self.count[j];
+            right[j] = a;
+            rc[j] = c;
+        }
+        let mut l = Acc::EMPTY;
+        let mut lc = 0;
+        for j in 0..BINS - 1 {
+            l.merge(&self.acc[j]);
+            lc += self.count[j];
+            out.push(Candidate {
+                left: l.bounds(),
+                right: right[j + 1].bounds(),
+                n_left: lc as usize,
+                n_right: rc[j + 1] as usize,
+            });
+        }
+        out
+    }
+
+    /// Partitions `ids` at plane `j` (bins `0..=j` go left).
+    pub fn partition(&self, boxes: &[TriBox], ids: &mut [u32], j: usize) -> Parts {
+        partition_by(boxes, ids, |b| self.bin(b) <= j)
+    }
+}
+
+/// One candidate plane of a binning.
+#[derive(Clone, Copy, Debug)]
+pub struct Candidate {
+    /// Union of the left triangles' boxes.
+    pub left: Aabb,
+    /// Union of the right triangles' boxes.
+    pub right: Aabb,
+    /// Triangles on the left.
+    pub n_left: usize,
+    /// Triangles on the right.
+    pub n_right: usize,
+}
+
+/// The SAH choice among `cands`: the plane minimising `A_L·N_L + A_R·N_R`, and that cost
+/// divided by the parent's area (so `C_T + cost` compares with the leaf cost `N`).
+pub fn sah(cands: &[Candidate], parent: &Aabb) -> Option<(usize, f32)> {
+    let pa = parent.area();
+    let mut best: Option<(usize, f32)> = None;
+    for (j, c) in cands.iter().enumerate() {
+        if c.n_left == 0 || c.n_right == 0 {
+            continue;
+        }
+        let cost = c.left.area() * c.n_left as f32 + c.right.area() * c.n_right as f32;
+        if best.map_or(true, |(_, b)| cost < b) {
+            best = Some((j, cost));
+        }
+    }
+    best.map(|(j, c)| (j, if pa > 0.0 { c / pa } else { c }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::dacrt::tris::encode;
+    use crate::geometry::Triangle;
+
+    fn tri_at(x: f32) -> Triangle {
+        Triangle {
+            v: [[x, 0.0, 0.0], [x + 0.5, 0.0, 0.0], [x, 0.5, 0.0]],
+        }
+    }
+
+    fn setup(xs: &[f32]) -> (Vec<TriBox>, Vec<u32>, Node) {
+        let boxes: Vec<TriBox> = xs.iter().map(|&x| encode(&tri_at(x)).0).collect();
+        let mut bounds = Aabb::EMPTY;
+        let mut cents = Aabb::EMPTY;
+        for b in &boxes {
+            bounds.grow([b.min[0], b.min[1], b.min[2]]);
+            bounds.grow([b.max[0], b.max[1], b.max[2]]);
+            cents.grow([b.centroid(0), b.centroid(1), b.centroid(2)]);
+        }
+        let ids = (0..boxes.len() as u32).collect();
+        (boxes, ids, Node { bounds, cents })
+    }
+
+    #[test]
+    fn middle_splits_and_bounds_children() {
+        let (boxes, mut ids, node) = setup(&[0.0, 10.0, 1.0, 9.0, 2.0]);
+        let p = middle(&boxes, &mut ids, &node).unwrap();
+        assert_eq!(p.mid, 3);
+        let mut l = ids[..3].to_vec();
+        l.sort();
+        assert_eq!(l, vec![0, 2, 4]);
+        assert_eq!(p.left.bounds.max[0], 2.5);
+        assert_eq!(p.right.bounds.min[0], 9.0);
+        assert_eq!(p.right.cents.min[0], 9.25);
+    }
+
+    #[test]
+    fn coincident_centroids_do_not_split() {
+        let (boxes, mut ids, node) = setup(&[1.0, 1.0, 1.0]);
+        assert!(middle(&boxes, &mut ids, &node).is_none());
+        assert!(Bins::new(&boxes, &ids, &node).is_none());
+    }
+
+    #[test]
+    fn adjacent_floats_still_split() {
+        let a = 1.0f32;
+        let b = f32::from_bits(a.to_bits() + 1);
+        let (boxes, mut ids, node) = setup(&[a, b]);
+        let p = middle(&boxes, &mut ids, &node).unwrap();
+        assert_eq!(p.mid, 1);
+    }
+
+    #[test]
+    fn sah_separates_clusters() {
+        let xs: Vec<f32> = (0..20)
+            .map(|i| {
+                if i < 10 {
+                    i as f32 * 0.01
+                } else {
+                    100.0 + i as f32 * 0.01
+                }
+            })
+            .collect();
+        let (boxes, mut ids, node) = setup(&xs);
+        let bins = Bins::new(&boxes, &ids, &node).unwrap();
+        let cands = bins.candidates();
+        let (j, cost) = sah(&cands, &node.bounds).unwrap();
+        assert_eq!(cands[j].n_left, 10);
+        assert!(cost < 20.0);
+        let p = bins.partition(&boxes, &mut ids, j);
+        assert_eq!(p.mid, 10);
+        assert!(ids[..10].iter().all(|&i| i < 10));
+    }
+}

@@ -1,0 +1,311 @@
+//! The divide-and-conquer recursion (Áfra 2012 §2–3.4, Nabata et al. 2013 Algorithm 1).
+//!
+//! A step receives its active rays (a prefix of the ray array, already filtered against its
+//! box), its triangles (a slice of the id array) and their boxes. It either intersects them
+//! naively (a leaf) or partitions the triangles, orders the two children, and for each child
+//! filters the rays against the child's box in place and recurses on the new prefix. The
+//! second child's filtering sees the `tmax` values the first child's hits left in the
+//! records, which is what makes front-to-back order pay.
+
+use std::sync::atomic::{AtomicIsize, AtomicU32};
+use std::time::Instant;
+
+use crate::geometry::Aabb;
+
+use super::leaf::{leaf, LeafTest, Table};
+use super::options::DacrtOptions;
+use super::parallel;
+use super::rays::{filter, FilterBox, RayRec};
+use super::sampling::{sample_pair, sampled_cost, Sampled};
+use super::split::{middle, sah, Bins, Node, Parts};
+use super::stats::{lap, Stats};
+use super::tris::TriData;
+
+/// What every step of one trace shares.
+pub struct Ctx<'a> {
+    /// The frame's triangles.
+    pub tris: &'a TriData,
+    /// Tunables.
+    pub opts: &'a DacrtOptions,
+    /// `any` query: rays leave the active set at their first hit.
+    pub any: bool,
+    /// Counters, when collected.
+    pub stats: Option<&'a Stats>,
+    /// Whether more than one thread may work on this trace.
+    pub parallel: bool,
+    /// Ray records that forks may still copy (see `parallel.rs`).
+    pub budget: AtomicIsize,
+    /// Per pool thread: its forks whose second child has not started yet (stealable work).
+    pub pending: Vec<AtomicU32>,
+    /// Steps with at least this many rays work data-parallel; below, they fork. At most the
+    /// option's value, and small enough that several forks fit in the copy budget.
+    pub data_min_rays: usize,
+}
+
+impl Ctx<'_> {
+    /// A clock reading when stats are collected.
+    #[inline]
+    pub fn clock(&self) -> Option<Instant> {
+        self.stats.map(|_| Instant::now())
+    }
+
+    /// Filters `rays` in place against `b`; returns the number of active rays (now first).
+    pub fn filter(&self, rays: &mut [RayRec], b: &Aabb) -> usize {
+        let t0 = self.clock();
+        let fb = FilterBox::new(b);
+        let n = if self.parallel && rays.len() >= self.data_min_rays {
+            parallel::filter_par(rays, &fb, self.opts.parallel.grain)
+        } else {
+            filter(rays, &fb)
+        };
+        if let Some(s) = self.stats {
+            Stats::add(&s.box_tests, rays.len() as u64);
+            lap(&s.filter_ns, t0);
+        }
+        n
+    }
+}
+
+/// One child to visit: its boxes, its triangles, and whether it takes its parent's rays
+/// unfiltered.
+pub struct Child<'i> {
+    /// Boxes.
+    pub node: Node,
+    /// Triangle ids.
+    pub ids: &'i mut [u32],
+    /// Nabata's skip: no filtering for this child.
+    pub skip: bool,
+}
+
+/// One traversal step.
+pub fn step<T: LeafTest>(
+    ctx: &Ctx,
+    rays: &mut [RayRec],
+    table: &mut Table,
+    ids: &mut [u32],
+    node: &Node,
+    depth: u32,
+) {
+    let o = ctx.opts;
+    if rays.len() < o.leaf_rays || ids.len() < o.leaf_tris {
+        return leaf_step::<T>(ctx, rays, table, ids);
+    }
+    let t0 = ctx.clock();
+    let plan = plan(ctx, rays, ids, node, depth);
+    if let Some(s) = ctx.stats {
+        lap(&s.split_ns, t0);
+    }
+    let Some(plan) = plan else {
+        return leaf_step::<T>(ctx, rays, table, ids);
+    };
+    if let Some(s) = ctx.stats {
+        Stats::add(&s.nodes, 1);
+    }
+    let (ids_l, ids_r) = ids.split_at_mut(plan.parts.mid);
+    let left = Child {
+        node: plan.parts.left,
+        ids: ids_l,
+        skip: plan.skip[0],
+    };
+    let right = Child {
+        node: plan.parts.right,
+        ids: ids_r,
+        skip: plan.skip[1],
+    };
+    let (first, second) = if plan.first_left {
+        (left, right)
+    } else {
+        (right, left)
+    };
+    if ctx.parallel && parallel::should_fork(ctx, rays.len()) {
+        return parallel::fork::<T>(ctx, rays, table, first, second, depth);
+    }
+    visit::<T>(ctx, rays, table, first, depth);
+    visit::<T>(ctx, rays, table, second, depth);
+}
+
+/// Filters `rays` for `child` (unless it skips) and recurses on the active prefix.
+pub fn visit<T: LeafTest>(
+    ctx: &Ctx,
+    rays: &mut [RayRec],
+    table: &mut Table,
+    child: Child,
+    depth: u32,
+) {
+    let m = if child.skip {
+        if let Some(s) = ctx.stats {
+            Stats::add(&s.skips, 1);
+        }
+        rays.len()
+    } else {
+        ctx.filter(rays, &child.node.bounds)
+    };
+    if m > 0 {
+        step::<T>(
+            ctx,
+            &mut rays[..m],
+            table,
+            child.ids,
+            &child.node,
+            depth + 1,
+        );
+    }
+}
+
+/// Naive intersection of a leaf.
+fn leaf_step<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut Table, ids: &[u32]) {
+    let t0 = ctx.clock();
+    if ctx.parallel && rays.len() >= ctx.data_min_rays {
+        parallel::leaf_par::<T>(ctx, rays, table, ids);
+    } else {
+        leaf::<T, _>(ctx.tris, rays, table, ids, ctx.any);
+    }
+    if let Some(s) = ctx.stats {
+        Stats::add(&s.leaves, 1);
+        Stats::add(&s.tri_tests, (rays.len() * ids.len()) as u64);
+        lap(&s.leaf_ns, t0);
+    }
+}
+
+/// How a node splits.
+struct Plan {
+    parts: Parts,
+    first_left: bool,
+    /// Skip filtering for [left, right].
+    skip: [bool; 2],
+}
+
+/// Most sample rays a node draws.
+const MAX_SAMPLES: usize = 256;
+
+/// A small deterministic generator for the sample positions (splitmix64).
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn below(&mut self, n: usize) -> usize {
+        (((self.next() >> 32) * n as u64) >> 32) as usize
+    }
+}
+
+/// Partitions the node's triangles and decides order and skips.
+fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) -> Option<Plan> {
+    let o = ctx.opts;
+    let s = &o.sampling;
+    let boxes = &ctx.tris.boxes;
+    let (n, t) = (rays.len(), ids.len());
+    let mut buf = [RayRec::default(); MAX_SAMPLES];
+    let ns = if s.enabled() && n > s.min_rays {
+        let ns = s.samples.min(MAX_SAMPLES);
+        let mut rng = Rng((n as u64) << 32 ^ (t as u64) << 8 ^ u64::from(depth));
+        for b in buf.iter_mut().take(ns) {
+            *b = rays[rng.below(n)];
+        }
+        ns
+    } else {
+        0
+    };
+    let samples = &buf[..ns];
+    let mut info: Option<Sampled> = None;
+    let parts = if n as f32 > o.sah_ratio * t as f32 {
+        let bins = if ctx.parallel && t >= o.parallel.data_min_tris {
+            parallel::bins_par(boxes, ids, node, o.parallel.grain)?
+        } else {
+            Bins::new(boxes, ids, node)?
+        };
+        let cands = bins.candidates();
+        let j = if ns > 0 && s.cost {
+            let (j, si) = sampled_cost(&cands, samples)?;
+            info = Some(si);
+            j
+        } else {
+            let (j, cost) = sah(&cands, &node.bounds)?;
+            if t <= o.sah_stop_max && o.traversal_cost + cost >= t as f32 {
+                return None;
+            }
+            j
+        };
+        if let Some(st) = ctx.stats {
+            Stats::add(&st.binned, 1);
+        }
+        if ctx.parallel && t >= o.parallel.data_min_tris {
+            parallel::partition_bins_par(&bins, boxes, ids, j, o.parallel.grain)
+        } else {
+            bins.partition(boxes, ids, j)
+        }
+    } else if ctx.parallel && t >= o.parallel.data_min_tris {
+        parallel::middle_par(boxes, ids, node, o.parallel.grain)?
+    } else {
+        middle(boxes, ids, node)?
+    };
+    if ns > 0 && info.is_none() && (s.order || s.skip) {
+        info = Some(sample_pair(
+            samples,
+            &parts.left.bounds,
+            &parts.right.bounds,
+        ));
+    }
+    if let (Some(st), true) = (ctx.stats, ns > 0) {
+        Stats::add(&st.sampled, 1);
+        Stats::add(&st.box_tests, (ns * 2) as u64);
+    }
+    let first_left = match info {
+        Some(si) if s.order => si.nearer_left >= si.nearer_right,
+        _ => afra_first_left(&rays[0], &parts),
+    };
+    let skip = match info {
+        Some(si) if s.skip => [
+            skip_filtering(o, si.hits_left, ns, parts.mid),
+            skip_filtering(o, si.hits_right, ns, t - parts.mid),
+        ],
+        _ => [false, false],
+    };
+    Some(Plan {
+        parts,
+        first_left,
+        skip,
+    })
+}
+
+/// Nabata's criterion (eq. 5): skip a child's filtering when the fraction `α` of sample rays
+/// entering it exceeds `1 - C_bv / (n_child · C_child)`. For a child that will be split,
+/// `n_child = 2` and `C_child = C_bv`, so `α > 0.5` (eq. 6); for a child that will be a leaf
+/// (fewer triangles than `leaf_tris`), `n_child` is its triangle count and `C_child` a
+/// ray/triangle test, so unfiltered rays must be rarer still before skipping pays.
+fn skip_filtering(o: &DacrtOptions, hits: u32, samples: usize, tris: usize) -> bool {
+    let alpha = hits as f32 / samples as f32;
+    let limit = if tris < o.leaf_tris {
+        1.0 - o.sampling.box_cost / tris.max(1) as f32
+    } else {
+        0.5
+    };
+    alpha > limit
+}
+
+/// Áfra's order (after Wald et al. 2007): on the axis where the children's centres are
+/// farthest apart, the first active ray's direction picks the nearer child.
+fn afra_first_left(ray: &RayRec, p: &Parts) -> bool {
+    let (cl, cr) = (p.left.bounds.center(), p.right.bounds.center());
+    let mut axis = 0;
+    let mut best = -1.0f32;
+    for k in 0..3 {
+        let d = (cl[k] - cr[k]).abs();
+        if d > best {
+            best = d;
+            axis = k;
+        }
+    }
+    let left_lower = cl[axis] <= cr[axis];
+    if ray.dir()[axis] >= 0.0 {
+        left_lower
+    } else {
+        !left_lower
+    }
+}
