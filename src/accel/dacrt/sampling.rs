@@ -121,13 +121,7 @@ impl Kernel for Count<'_> {
 /// Tests `samples` against every pair of boxes; one [`Sampled`] per pair.
 pub fn sample_pairs(samples: &[RayRec], pairs: &[(Aabb, Aabb)]) -> Vec<Sampled> {
     let p = Pairs::new(pairs);
-    let counts = simd::dispatch(
-        simd::selected(),
-        Count {
-            pairs: &p,
-            samples,
-        },
-    );
+    let counts = simd::dispatch(simd::selected(), Count { pairs: &p, samples });
     (0..pairs.len())
         .map(|j| {
             let c = &counts[j / W];
@@ -195,7 +189,10 @@ mod tests {
         let samples: Vec<RayRec> = (0..37)
             .map(|i| {
                 let y = (i % 5) as f32 * 0.3;
-                ray([-2.0 + (i % 7) as f32, y, 0.5], [if i % 2 == 0 { 1.0 } else { -1.0 }, 0.0, 0.0])
+                ray(
+                    [-2.0 + (i % 7) as f32, y, 0.5],
+                    [if i % 2 == 0 { 1.0 } else { -1.0 }, 0.0, 0.0],
+                )
             })
             .collect();
         let got = sample_pairs(&samples, &pairs);
