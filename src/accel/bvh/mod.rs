@@ -65,7 +65,7 @@ mod stats;
 mod validate;
 mod wide;
 
-pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri};
+pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};
 pub use stats::BvhStats;
 pub use wide::{Child, Mbvh, Mbvh4, Mbvh8, MultiTri, WideNode};
 
