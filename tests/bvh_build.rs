@@ -628,82 +628,24 @@ fn load_glb(path: &std::path::Path) -> Vec<Triangle> {
     out
 }
 
-/// CPU time of all threads of this process so far, in seconds (Linux schedstat), so that
-/// timings on a shared machine can be read as well as wall time.
-fn cpu_seconds() -> f64 {
-    let mut ns = 0u64;
-    if let Ok(dir) = std::fs::read_dir("/proc/self/task") {
-        for e in dir.flatten() {
-            if let Ok(s) = std::fs::read_to_string(e.path().join("schedstat")) {
-                ns += s
-                    .split_whitespace()
-                    .next()
-                    .and_then(|v| v.parse().ok())
-                    .unwrap_or(0);
-            }
-        }
-    }
-    ns as f64 * 1e-9
-}
-
-/// Best wall time and best CPU time over `reps` runs, and the last result.
-fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> ((f64, f64), T) {
-    let mut best = (f64::INFINITY, f64::INFINITY);
+/// Best wall time over `reps` runs, and the last result.
+fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
+    let mut best = f64::INFINITY;
     let mut last = None;
     for _ in 0..reps {
-        let c0 = cpu_seconds();
         let t0 = std::time::Instant::now();
         let r = f();
-        best.0 = best.0.min(t0.elapsed().as_secs_f64());
-        best.1 = best.1.min(cpu_seconds() - c0);
+        best = best.min(t0.elapsed().as_secs_f64());
         last = Some(r);
     }
     (best, last.unwrap())
 }
 
-/// Every invariant on the real scenes (needs `RAYD_SCENES`; slow: `validate` walks and
-/// samples everything).
-#[test]
-#[ignore]
-fn real_scenes_keep_every_invariant() {
-    let Ok(dir) = std::env::var("RAYD_SCENES") else {
-        eprintln!("RAYD_SCENES not set: nothing to check");
-        return;
-    };
-    let mut files: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.extension().is_some_and(|e| e == "glb"))
-        .collect();
-    files.sort();
-    for p in files {
-        // Draco-compressed files hold no plain positions; the throwaway reader skips them.
-        let Ok(tris) = std::panic::catch_unwind(|| load_glb(&p)) else {
-            continue;
-        };
-        for q in QUALITIES {
-            let name = p.file_name().unwrap().to_string_lossy();
-            Mbvh8::build(&tris, q)
-                .validate(&tris)
-                .unwrap_or_else(|e| panic!("{name} mbvh8 {q:?}: {e}"));
-            Mbvh4::build(&tris, q)
-                .validate(&tris)
-                .unwrap_or_else(|e| panic!("{name} mbvh4 {q:?}: {e}"));
-            Bvh2::build(&tris, q)
-                .validate(&tris)
-                .unwrap_or_else(|e| panic!("{name} bvh2 {q:?}: {e}"));
-            let moved = deform(&tris, 0.25);
-            let mut m = Mbvh8::build(&tris, q);
-            if m.refit(&moved).is_ok() {
-                m.validate(&moved)
-                    .unwrap_or_else(|e| panic!("{name} mbvh8 refit {q:?}: {e}"));
-            }
-        }
-        eprintln!("ok {} ({} triangles)", p.display(), tris.len());
-    }
-}
-
+/// Times the builds (and a refit) on generated and real scenes. Environment:
+/// `RAYD_SCENES` (folder with the test scenes), `RAYD_MEASURE` (scene name filter),
+/// `RAYD_QUALITY` (fast|sah|sbvh), `RAYD_LAYOUTS` (e.g. `mbvh8,bvh2`), `RAYD_THREADS`
+/// (e.g. `1,2`), `RAYD_REPS` (best of), `RAYD_DUMP_DIR` (write each scene's raw positions,
+/// 9 × f32 per triangle, to time other builders on the same input).
 #[test]
 #[ignore]
 fn measure_build_times() {
@@ -761,31 +703,36 @@ fn measure_build_times() {
                 if !want.is_empty() && want != q.name() {
                     continue;
                 }
-                // RAYD_ALL=0 times only the MBVH8 build (the others once, for statistics).
-                let all = std::env::var("RAYD_ALL").map_or(true, |v| v != "0");
-                let r_other = if all { reps } else { 1 };
-                let (t8, m8) = pool.install(|| time_best(reps, || Mbvh::<8>::build(tris, q)));
-                let (t4, m4) = pool.install(|| time_best(r_other, || Mbvh::<4>::build(tris, q)));
-                let (t2, b2) = pool.install(|| time_best(r_other, || Bvh2::build(tris, q)));
-                let (tr, _) = pool.install(|| {
-                    let mut m = m8.clone();
-                    time_best(reps, move || m.refit(tris).unwrap())
-                });
-                println!(
-                    "{name:>22} {:>8} tris  threads={threads} {:>4}: wall/cpu ms  mbvh8 {:7.1} {:7.1}  mbvh4 {:7.1} {:7.1}  bvh2 {:7.1} {:7.1}  refit8 {:6.1} {:6.1}",
+                let layouts =
+                    std::env::var("RAYD_LAYOUTS").unwrap_or_else(|_| "mbvh8,mbvh4,bvh2".into());
+                let mut line = format!(
+                    "{name:>22} {:>8} tris  threads={threads} {:>4}:",
                     tris.len(),
-                    q.name(),
-                    t8.0 * 1e3,
-                    t8.1 * 1e3,
-                    t4.0 * 1e3,
-                    t4.1 * 1e3,
-                    t2.0 * 1e3,
-                    t2.1 * 1e3,
-                    tr.0 * 1e3,
-                    tr.1 * 1e3
+                    q.name()
                 );
+                let mut stats = Vec::new();
+                if layouts.contains("mbvh8") {
+                    let (t, m) = pool.install(|| time_best(reps, || Mbvh::<8>::build(tris, q)));
+                    let (tr, _) = pool.install(|| {
+                        let mut m = m.clone();
+                        time_best(reps, move || m.refit(tris).unwrap())
+                    });
+                    line += &format!("  mbvh8 {:7.1} ms  refit8 {:6.1} ms", t * 1e3, tr * 1e3);
+                    stats.push(m.stats());
+                }
+                if layouts.contains("mbvh4") {
+                    let (t, m) = pool.install(|| time_best(reps, || Mbvh::<4>::build(tris, q)));
+                    line += &format!("  mbvh4 {:7.1} ms", t * 1e3);
+                    stats.push(m.stats());
+                }
+                if layouts.contains("bvh2") {
+                    let (t, b) = pool.install(|| time_best(reps, || Bvh2::build(tris, q)));
+                    line += &format!("  bvh2 {:7.1} ms", t * 1e3);
+                    stats.push(b.stats());
+                }
+                println!("{line}");
                 if threads == threads_list[0] {
-                    for s in [m8.stats(), m4.stats(), b2.stats()] {
+                    for s in stats {
                         println!("    {}", serde_json::to_string(&s).unwrap());
                     }
                 }

@@ -89,6 +89,25 @@ impl BinMap {
         [k[0] as usize, k[1] as usize, k[2] as usize]
     }
 
+    /// The largest centroid coordinate along `axis`, within the centroid bounds `cent`,
+    /// whose bin is below `b` (1 ≤ `b` ≤ last bin). [`BinMap::bin`] is monotone, so
+    /// `bin(c) < b` exactly when `c <= last_below(..)`: the partition compares one float
+    /// instead of recomputing bins, and still agrees with the binning on every reference.
+    /// Found by bisection over the ordered bit patterns of f32.
+    pub fn last_below(&self, axis: usize, b: usize, cent: &Aabb) -> f32 {
+        let (mut lo, mut hi) = (ordered(cent.min[axis]), ordered(cent.max[axis]));
+        debug_assert!(self.bin(unordered(lo), axis) < b && self.bin(unordered(hi), axis) >= b);
+        while hi - lo > 1 {
+            let mid = lo + (hi - lo) / 2;
+            if self.bin(unordered(mid), axis) < b {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        unordered(lo)
+    }
+
     /// The plane between bins `i - 1` and `i` along `axis`.
     #[inline]
     pub fn plane(&self, axis: usize, i: usize) -> f32 {
@@ -289,6 +308,12 @@ fn ordered(x: f32) -> u32 {
     } else {
         b | 1 << 31
     }
+}
+
+/// The inverse of [`ordered`].
+#[inline(always)]
+fn unordered(u: u32) -> f32 {
+    f32::from_bits(if u >> 31 == 1 { u & !(1 << 31) } else { !u })
 }
 
 /// The cheapest split position along one axis.
@@ -559,8 +584,8 @@ impl Splitter for SahSplitter<'_> {
         let (mut nl, mut nr) = match *plan {
             SahPlan::Object { axis, bin, map } => {
                 let (a, b) = (axis as usize, bin as usize);
-                let (nl, bx) =
-                    partition_bounds::<true>(&mut refs[..n], |x| map.bin(x.centroid(a), a) < b);
+                let t = map.last_below(a, b, &r.info.0);
+                let (nl, bx) = partition_bounds::<true>(&mut refs[..n], |x| x.centroid(a) <= t);
                 bounds = Some(bx);
                 (nl, n - nl)
             }
@@ -716,6 +741,25 @@ mod tests {
         assert_eq!(m.bin(-5.0, 0), 0);
         assert_eq!(m.bin(f32::INFINITY, 0), BINS - 1);
         assert_eq!(m.bin(f32::NAN, 0), 0);
+    }
+
+    #[test]
+    fn last_below_matches_the_bins() {
+        let b = Aabb {
+            min: [-3.0, 0.001, -1e20],
+            max: [7.0, 0.002, 1e25],
+        };
+        let m = BinMap::new(&b, BINS, 1.0 - 1e-6);
+        assert_eq!(unordered(ordered(-2.5)), -2.5);
+        assert_eq!(unordered(ordered(0.0)), 0.0);
+        for a in 0..3 {
+            for bin in 1..BINS {
+                let t = m.last_below(a, bin, &b);
+                assert!(m.bin(t, a) < bin);
+                let next = unordered(ordered(t) + 1);
+                assert!(m.bin(next, a) >= bin, "axis {a} bin {bin}");
+            }
+        }
     }
 
     #[test]

@@ -22,13 +22,14 @@
 //! The binary split a candidate child offers depends on [`BuildQuality`]:
 //!
 //! - `Sah`: binned SAH over triangle centroids, 32 bins on each axis, with the cost of
-//!   eq. 1 (counts rounded up to whole multi-triangles). Ranges of at most 32 references
-//!   are split by an exact sweep over their sorted centroids instead (cheaper than 3 × 32
-//!   bins there, and exact).
+//!   eq. 1 (counts rounded up to whole multi-triangles). Small ranges are cheaper to split
+//!   otherwise: up to 128 references use 16 bins, up to 24 an exact sweep over their
+//!   sorted centroids (on the dragon these cut the build's instructions by 7% for a SAH
+//!   cost within 0.1%).
 //! - `Sbvh`: the same object splits plus spatial splits (Stich, Friedrich & Dietrich
 //!   2009): 16 spatial bins per axis with references chopped at the bin planes, tried
 //!   when the best object split's children overlap by more than α = 1e-5 of the root's
-//!   surface area (and the range has more than 32 references); straddling references are
+//!   surface area (and the range has more than 24 references); straddling references are
 //!   duplicated unless reference unsplitting is cheaper. References may grow to twice
 //!   the triangle count.
 //! - `Fast`: a Morton-code build. Centroids are quantised to 10 bits per axis, radix
@@ -65,7 +66,7 @@ mod stats;
 mod validate;
 mod wide;
 
-pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri};
+pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};
 pub use stats::BvhStats;
 pub use wide::{Child, Mbvh, Mbvh4, Mbvh8, MultiTri, WideNode};
 
