@@ -15,6 +15,19 @@ use rayd::accel::{build, AccelKind, BuildOptions, BuildQuality, Precision, Query
 use rayd::bench::{CameraChoice, View, ViewKind};
 use rayd::geometry::Hit;
 
+/// CPU time of all the process's threads so far, in seconds (Linux `schedstat`; 0 where
+/// unavailable). On a shared machine it is steadier than wall time: time spent waiting
+/// for a core is not counted.
+fn cpu_seconds() -> f64 {
+    let Ok(dir) = std::fs::read_dir("/proc/self/task") else {
+        return 0.0;
+    };
+    dir.filter_map(|e| std::fs::read_to_string(e.ok()?.path().join("schedstat")).ok())
+        .filter_map(|s| s.split_whitespace().next()?.parse::<f64>().ok())
+        .sum::<f64>()
+        * 1e-9
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     if args.len() < 6 {
@@ -57,23 +70,28 @@ fn main() {
     let mut hits = vec![Hit::MISS; rays.len()];
     // Passes alternate between the accelerators so that a noisy machine slows all alike.
     let mut times = vec![Vec::new(); accels.len()];
+    let mut cpu = vec![Vec::new(); accels.len()];
     for _ in 0..passes {
-        for (a, t) in accels.iter().zip(&mut times) {
-            let t0 = std::time::Instant::now();
+        for ((a, t), c) in accels.iter().zip(&mut times).zip(&mut cpu) {
+            let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
             pool.install(|| a.trace(&rays, Query::Closest, &mut hits));
             t.push(t0.elapsed().as_secs_f64());
+            c.push(cpu_seconds() - c0);
         }
     }
     let mut first = None;
-    for (a, t) in accels.iter().zip(&mut times) {
+    for ((a, t), c) in accels.iter().zip(&mut times).zip(&mut cpu) {
         t.sort_by(f64::total_cmp);
+        c.sort_by(f64::total_cmp);
         let mray = rays.len() as f64 / t[t.len() / 2] / 1e6;
-        let base = *first.get_or_insert(mray);
+        let mray_cpu = rays.len() as f64 / c[c.len() / 2] / 1e6;
+        let (base, base_cpu) = *first.get_or_insert((mray, mray_cpu));
         println!(
-            "{:>8}: median {mray:.3} Mray/s (best {:.3}), {:.3}x the first",
+            "{:>8}: median {mray:.3} Mray/s (best {:.3}), {:.3}x the first; per CPU-second {mray_cpu:.3} Mray, {:.3}x",
             a.name(),
             rays.len() as f64 / t[0] / 1e6,
-            mray / base
+            mray / base,
+            mray_cpu / base_cpu
         );
     }
 }

@@ -15,7 +15,8 @@
 //!   multi-triangles in the builder) exactly one.
 //!
 //! Nodes keep the builder's depth-first order and child-id encoding (sign bit = leaf,
-//! bits 0..29 first pack, bits 29..31 pack count − 1, −1 = empty lane).
+//! bits 0..29 first pack, bits 29..31 pack count − 1), except that empty lanes point at
+//! an all-padding pack 0 instead of −1.
 
 use crate::accel::bvh::{self, Child};
 use crate::accel::triangle::{Tri8, TriTest};
@@ -31,8 +32,10 @@ pub struct TravNode<const N: usize> {
     /// upper bounds, which the near/far-by-sign slab test never hits.
     pub planes: [[f32; N]; 6],
     /// Child ids per lane: `>= 0` an inner node's index; sign bit set a leaf (bits 0..29
-    /// the first [`Tri8`] pack, bits 29..31 the pack count − 1); [`Child::EMPTY`] an
-    /// unused lane.
+    /// the first [`Tri8`] pack, bits 29..31 the pack count − 1). Unused lanes are a leaf
+    /// of pack 0, which holds only padding: the slab test misses their empty boxes for
+    /// every ray with a normal-sized direction, and should NaNs (from a denormal-small
+    /// direction) let one through, visiting it is harmless.
     pub child: [i32; N],
     /// Zero; pads the node to whole cache lines.
     pad: [i32; N],
@@ -72,7 +75,10 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         let src = tree.nodes();
         let mts = tree.multi_tris();
         let mut nodes = Vec::with_capacity(src.len());
-        let mut packs: Vec<Tri8<T>> = Vec::with_capacity(mts.len() * N / 8 + 1);
+        let mut packs: Vec<Tri8<T>> = Vec::with_capacity(mts.len() * N / 8 + 2);
+        // Pack 0 is all padding: empty lanes point at it (see `TravNode::child`).
+        packs.push(Tri8::pack(&[]));
+        let empty = Child::Leaf { first: 0, count: 1 }.encode();
         let mut lane_buf: Vec<(u32, Triangle)> = Vec::with_capacity(2 * N);
         for n in src {
             let mut planes = [[0.0f32; N]; 6];
@@ -80,7 +86,9 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             planes[3..].copy_from_slice(&n.max);
             let mut child = n.child;
             for c in child.iter_mut() {
-                if let Child::Leaf { first, count } = Child::decode(*c) {
+                if *c == Child::EMPTY {
+                    *c = empty;
+                } else if let Child::Leaf { first, count } = Child::decode(*c) {
                     lane_buf.clear();
                     for mt in &mts[first as usize..(first + count) as usize] {
                         for lane in 0..mt.lanes() {

@@ -19,7 +19,7 @@ pub mod traverse;
 
 pub use layout::{TravNode, TravTree};
 
-use super::triangle::{MollerTrumbore, Tri8, TriTest, Watertight};
+use super::triangle::{MollerTrumbore, TriTest, Watertight};
 use super::{bvh, BuildOptions, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, Backend, Kernel, Simd};
@@ -192,13 +192,5 @@ where
             Trees::Fast(t) => t.bytes(),
             Trees::Watertight(t) => t.bytes(),
         }
-    }
-}
-
-/// Statistics helpers for tests: the packs of a tree hold every traceable triangle.
-impl<const N: usize, T: TriTest> TravTree<N, T> {
-    /// Number of real triangle lanes over all packs (SBVH duplicates counted).
-    pub fn lanes(&self) -> usize {
-        self.packs.iter().map(Tri8::len).sum()
     }
 }

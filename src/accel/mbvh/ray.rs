@@ -19,16 +19,32 @@
 //! lie in it); the remaining NaN cases (a plane exactly at a moved origin) are ignored by
 //! the operand order of the x86 `min`/`max` rule, which only ever enlarges the interval.
 //! The grown boxes cost a negligible number of extra visits (δ is ~10⁻⁶ of the scene).
+//!
+//! # Finite reciprocals
+//!
+//! A ±0 direction component would make `1/dir` infinite and every slab distance of that
+//! axis NaN in the fused form `plane·inv - org·inv` (∞ - ∞), which the slab test ignores:
+//! correct, but an axis-parallel ray would then cull on no axis at all. So components
+//! smaller than `TILT = 2^-21` of the largest are raised to that size, keeping their sign:
+//! the box test then follows a ray tilted by at most `2^-21·max|dir|` per unit of t. Any
+//! box hit lies within the scene, i.e. at `t <= (scale + |org|)/max|dir|`, where the tilt
+//! has moved the ray by at most `2^-21·(scale + |org|) = δ/4`: well inside the growth.
 
 use crate::accel::triangle::PreparedRay;
 
 /// Relative size of the box growth (see the module docs).
 pub const SLACK: f32 = 1.0 / (1u32 << 19) as f32;
 
+/// Direction components smaller than this fraction of the largest are raised to it (sign
+/// kept) before the reciprocal (see the module docs).
+pub const TILT: f32 = 1.0 / (1u32 << 21) as f32;
+
 /// What the slab test needs of one ray.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BoxRay {
-    /// `1 / dir` (±inf for ±0 components: the sign is what matters).
+    /// `1 / dir`, each component first raised in magnitude to at least
+    /// [`TILT`]`·max|dir|` with its sign (bit) kept: finite for every valid ray whose
+    /// direction is not denormal-small.
     pub inv: [f32; 3],
     /// Origin for the lower planes: `org + δ`.
     pub org_lo: [f32; 3],
@@ -50,8 +66,14 @@ impl BoxRay {
         let o = r.org;
         let big = o.iter().fold(scale, |m, x| m.max(x.abs()));
         let delta = SLACK * (scale + big);
+        let d = r.dir;
+        let floor = TILT * d.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        let safe = |x: f32| {
+            let a = x.abs().max(floor);
+            1.0 / if x.is_sign_negative() { -a } else { a }
+        };
         BoxRay {
-            inv: [1.0 / r.dir[0], 1.0 / r.dir[1], 1.0 / r.dir[2]],
+            inv: [safe(d[0]), safe(d[1]), safe(d[2])],
             org_lo: [o[0] + delta, o[1] + delta, o[2] + delta],
             org_hi: [o[0] - delta, o[1] - delta, o[2] - delta],
             neg: [

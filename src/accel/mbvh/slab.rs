@@ -2,12 +2,16 @@
 //! Kajiya; Áfra 2013 §4), 8 lanes for MBVH8 and 4 for MBVH4.
 //!
 //! Per axis, the near plane's row (lower bound for a direction with a clear sign bit,
-//! upper bound otherwise) is chosen once per ray, so a node costs 6 loads, 6 subtractions,
-//! 6 multiplications, 6 min/max and one compare. Entry distances are
+//! upper bound otherwise) is chosen once per ray, so a node costs 6 loads, 6 fused
+//! multiply-adds `plane·inv - org·inv`, 6 min/max and one compare. Entry distances are
 //! `max(near_x, near_y, near_z, tmin)` and exits `min(far_x, far_y, far_z, tfar)`, written
-//! so that a NaN slab distance (0·∞) is the *first* operand of the x86 `min`/`max` and is
-//! therefore ignored. See [`super::ray`] for why the planes are measured from moved
-//! origins.
+//! so that a NaN slab distance (0·∞, ∞-∞ for a ±0 direction component) is the *first*
+//! operand of the x86 `min`/`max` and is therefore ignored: the interval can only grow.
+//! See [`super::ray`] for why the planes are measured from moved origins.
+//!
+//! The multiply-add form rounds `org·inv` once, an error of 2^-24·|org|/|dir| in t, which
+//! is 32 times smaller than the boxes' growth (and `mul_add` is fused only on AVX2's
+//! 8-wide vectors; elsewhere its two roundings stay within the same bound).
 
 use super::layout::TravNode;
 use super::ray::BoxRay;
@@ -29,12 +33,15 @@ pub trait SlabTest<const N: usize> {
     fn test<S: Simd>(s: S, r: &Self::Ray<S>, node: &TravNode<N>, tfar: f32) -> (u32, [f32; 8]);
 }
 
-/// [`BoxRay`] in vector registers of width `V`.
+/// [`BoxRay`] in vector registers of width `V`, with the origins premultiplied so that a
+/// plane's distance is one fused multiply-add: `plane·inv - org·inv`.
 #[derive(Clone, Copy, Debug)]
 pub struct VRay<V> {
     inv: [V; 3],
-    near_org: [V; 3],
-    far_org: [V; 3],
+    /// `-(near origin · inv)` per axis.
+    near_oi: [V; 3],
+    /// `-(far origin · inv)` per axis.
+    far_oi: [V; 3],
     near: [usize; 3],
     far: [usize; 3],
     tmin: V,
@@ -47,17 +54,18 @@ macro_rules! slab_impl {
 
             #[inline(always)]
             fn ray<S: Simd>(s: S, r: &BoxRay) -> VRay<S::$f> {
+                let oi = |o: f32, k: usize| s.$splat(-(o * r.inv[k]));
                 VRay {
                     inv: [s.$splat(r.inv[0]), s.$splat(r.inv[1]), s.$splat(r.inv[2])],
-                    near_org: [
-                        s.$splat(r.near_org(0)),
-                        s.$splat(r.near_org(1)),
-                        s.$splat(r.near_org(2)),
+                    near_oi: [
+                        oi(r.near_org(0), 0),
+                        oi(r.near_org(1), 1),
+                        oi(r.near_org(2), 2),
                     ],
-                    far_org: [
-                        s.$splat(r.far_org(0)),
-                        s.$splat(r.far_org(1)),
-                        s.$splat(r.far_org(2)),
+                    far_oi: [
+                        oi(r.far_org(0), 0),
+                        oi(r.far_org(1), 1),
+                        oi(r.far_org(2), 2),
                     ],
                     near: [r.near_row(0), r.near_row(1), r.near_row(2)],
                     far: [r.far_row(0), r.far_row(1), r.far_row(2)],
@@ -73,15 +81,17 @@ macro_rules! slab_impl {
                 tfar: f32,
             ) -> (u32, [f32; 8]) {
                 let p = &node.planes;
-                let d = |row: usize, org: S::$f, inv: S::$f| (s.$load(&p[row]) - org) * inv;
-                let nx = d(r.near[0], r.near_org[0], r.inv[0]);
-                let ny = d(r.near[1], r.near_org[1], r.inv[1]);
-                let nz = d(r.near[2], r.near_org[2], r.inv[2]);
-                let fx = d(r.far[0], r.far_org[0], r.inv[0]);
-                let fy = d(r.far[1], r.far_org[1], r.inv[1]);
-                let fz = d(r.far[2], r.far_org[2], r.inv[2]);
-                let tn = nx.max(ny.max(nz.max(r.tmin)));
-                let tf = fx.min(fy.min(fz.min(s.$splat(tfar))));
+                let d = |row: usize, oi: S::$f, inv: S::$f| s.$load(&p[row]).mul_add(inv, oi);
+                let nx = d(r.near[0], r.near_oi[0], r.inv[0]);
+                let ny = d(r.near[1], r.near_oi[1], r.inv[1]);
+                let nz = d(r.near[2], r.near_oi[2], r.inv[2]);
+                let fx = d(r.far[0], r.far_oi[0], r.inv[0]);
+                let fy = d(r.far[1], r.far_oi[1], r.inv[1]);
+                let fz = d(r.far[2], r.far_oi[2], r.inv[2]);
+                // Two levels instead of a chain of three. A NaN in the first operand of a
+                // level drops its partner too, which only enlarges the interval.
+                let tn = nx.max(ny).max(nz.max(r.tmin));
+                let tf = fx.min(fy).min(fz.min(s.$splat(tfar)));
                 let mask = tn.le(tf).bitmask();
                 (mask, widen(tn.to_array()))
             }
