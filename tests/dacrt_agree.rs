@@ -9,7 +9,7 @@
 
 use proptest::prelude::*;
 use rayd::accel::dacrt::leaf::{LeafTest, Moller, Watertight};
-use rayd::accel::dacrt::{Dacrt, DacrtOptions};
+use rayd::accel::dacrt::{Dacrt, DacrtOptions, ForkSplit};
 use rayd::accel::{build, AccelKind, BuildOptions, Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
 
@@ -39,6 +39,11 @@ fn forced_parallel(mut o: DacrtOptions) -> DacrtOptions {
     o
 }
 
+fn tris_split(mut o: DacrtOptions) -> DacrtOptions {
+    o.parallel.split = ForkSplit::Tris;
+    o
+}
+
 /// The variants checked: (label, options, threads).
 fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
     let mut small_leaves = DacrtOptions::afra();
@@ -54,7 +59,9 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-small", small_leaves, 1),
         ("dacrt-sampled-small", sampled_small, 1),
         ("dacrt-par", forced_parallel(small_leaves), 2),
-        ("dacrt-sampled-par", forced_parallel(sampled_small), 2),
+        ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
+        ("dacrt-par-tris", tris_split(forced_parallel(small_leaves)), 2),
+        ("dacrt-sampled-par-tris", tris_split(forced_parallel(sampled_small)), 3),
     ]
 }
 

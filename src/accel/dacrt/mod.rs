@@ -32,7 +32,7 @@ pub mod stats;
 pub mod traverse;
 pub mod tris;
 
-use std::sync::atomic::{AtomicIsize, AtomicU32};
+use std::sync::atomic::AtomicIsize;
 use std::time::Instant;
 
 use rayon::prelude::*;
@@ -40,7 +40,7 @@ use rayon::prelude::*;
 use super::{Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 
-pub use options::{DacrtOptions, Parallelism, Sampling};
+pub use options::{DacrtOptions, ForkSplit, Parallelism, Sampling};
 
 use leaf::{LeafTest, Moller, Table, Watertight};
 use rays::{RayRec, SLOT_MASK};
@@ -144,7 +144,7 @@ impl Dacrt {
                 stats: stats.as_ref(),
                 parallel,
                 budget: AtomicIsize::new(budget as isize),
-                pending: (0..threads).map(|_| AtomicU32::new(0)).collect(),
+                workers: parallel::Workers::new(threads),
                 data_min_rays: p.data_min_rays.min((budget / 4).max(4 * p.fork_min_rays)),
             };
             let root = Node {

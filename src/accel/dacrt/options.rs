@@ -48,6 +48,15 @@ impl Sampling {
     }
 }
 
+/// What a fork splits (see `parallel.rs`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ForkSplit {
+    /// Two coherent halves of the rays traverse the same node at once.
+    Rays,
+    /// The two children run at once, each on a copy of its rays.
+    Tris,
+}
+
 /// How the recursion uses several threads (see `parallel.rs`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Parallelism {
@@ -66,6 +75,8 @@ pub struct Parallelism {
     pub data_min_tris: usize,
     /// Data-parallel passes split their ranges down to pieces of this many elements.
     pub grain: usize,
+    /// What forks split.
+    pub split: ForkSplit,
 }
 
 impl Default for Parallelism {
@@ -77,6 +88,7 @@ impl Default for Parallelism {
             fork_budget: 0.125,
             data_min_tris: 1 << 13,
             grain: 1 << 14,
+            split: ForkSplit::Rays,
         }
     }
 }
@@ -91,6 +103,14 @@ pub struct DacrtOptions {
     /// Above this ratio of active rays to triangles a node is split by binning (SAH or the
     /// sampled cost), below it at the middle (Áfra: 1–2 best; Nabata: 1.5).
     pub sah_ratio: f32,
+    /// Bin all three axes for the binned splits, not only the widest centroid axis
+    /// (Áfra's choice): better splits where huge triangles (a room's walls) share nodes
+    /// with small ones, for three times the binning.
+    pub all_axes: bool,
+    /// The binned splits also consider separating the triangles whose box has more than
+    /// this fraction of the node's surface area from the others (0: off; not in the
+    /// papers). See `split::Bins::empty_on`.
+    pub big_fraction: f32,
     /// Cost of a traversal step relative to a ray/triangle test, for the SAH's leaf
     /// decision.
     pub traversal_cost: f32,
@@ -113,6 +133,8 @@ impl DacrtOptions {
             leaf_rays: 8,
             leaf_tris: 8,
             sah_ratio: 1.5,
+            all_axes: false,
+            big_fraction: 0.1,
             traversal_cost: 1.0,
             sah_stop_max: 32,
             sampling: Sampling::OFF,
@@ -135,9 +157,9 @@ impl DacrtOptions {
     }
 
     /// Applies overrides from `get(name)`: `RAYD_DACRT_LEAF_RAYS`, `_LEAF_TRIS`,
-    /// `_SAH_RATIO`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_COST`,
+    /// `_SAH_RATIO`, `_ALL_AXES` (0/1), `_BIG_FRACTION`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_COST`,
     /// `_SAMPLE_ORDER`, `_SAMPLE_SKIP` (0/1; only where sampling is on), `_PARALLEL` (0/1),
-    /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_STATS` (0/1).
+    /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_FORK_SPLIT` (rays/tris), `_STATS` (0/1).
     /// Unparsable values are ignored.
     pub fn apply(mut self, get: impl Fn(&str) -> Option<String>) -> DacrtOptions {
         fn num<T: std::str::FromStr>(v: Option<String>, into: &mut T) {
@@ -157,6 +179,8 @@ impl DacrtOptions {
         num(g("LEAF_TRIS"), &mut self.leaf_tris);
         num(g("SAH_RATIO"), &mut self.sah_ratio);
         num(g("TRAVERSAL_COST"), &mut self.traversal_cost);
+        flag(g("ALL_AXES"), &mut self.all_axes);
+        num(g("BIG_FRACTION"), &mut self.big_fraction);
         num(g("SAH_STOP_MAX"), &mut self.sah_stop_max);
         num(g("SAMPLES"), &mut self.sampling.samples);
         num(g("SAMPLE_MIN_RAYS"), &mut self.sampling.min_rays);
@@ -172,6 +196,11 @@ impl DacrtOptions {
         num(g("FORK_BUDGET"), &mut self.parallel.fork_budget);
         num(g("DATA_MIN_TRIS"), &mut self.parallel.data_min_tris);
         num(g("GRAIN"), &mut self.parallel.grain);
+        match g("FORK_SPLIT").as_deref().map(str::trim) {
+            Some("rays") => self.parallel.split = ForkSplit::Rays,
+            Some("tris") => self.parallel.split = ForkSplit::Tris,
+            _ => {}
+        }
         flag(g("STATS"), &mut self.stats);
         self.leaf_rays = self.leaf_rays.max(1);
         self.leaf_tris = self.leaf_tris.max(2);

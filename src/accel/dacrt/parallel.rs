@@ -20,9 +20,16 @@
 //!   local table holds, per copied ray, the parent's slot in `v`: merging is one pass over
 //!   the copy. Forks are made only when the thread has no stealable work already, and the
 //!   records they copy are bounded by a budget, which is what keeps memory near the papers'
-//!   formula. (Whether a thread has stealable work is tracked per thread in
-//!   [`Ctx::pending`], counting its forks whose second child has not started.)
+//!   formula.
+//! - **Ray-split forks** (the default in the fork band): the step's rays are split into
+//!   two coherent halves that traverse the same node at once (see [`fork_rays`]); each half
+//!   keeps its own front-to-back culling, at the price of partitioning the node's triangles
+//!   twice.
+//!
+//! Forks are made only when a thread is idle ([`Workers`]), so the second half is almost
+//! always taken by another thread at once.
 
+use std::sync::atomic::AtomicUsize;
 use std::sync::atomic::Ordering::Relaxed;
 
 use rayon::prelude::*;
@@ -160,12 +167,19 @@ pub fn middle_par(boxes: &[TriBox], ids: &mut [u32], node: &Node, grain: usize) 
 }
 
 /// [`Bins::new`] on several threads.
-pub fn bins_par(boxes: &[TriBox], ids: &[u32], node: &Node, grain: usize) -> Option<Bins> {
-    let empty = Bins::empty(node)?;
+pub fn bins_par(
+    boxes: &[TriBox],
+    ids: &[u32],
+    node: &Node,
+    axis: usize,
+    big: f32,
+    grain: usize,
+) -> Option<Bins> {
+    let empty = Bins::empty_on(node, axis, big)?;
     let bins = ids
         .par_chunks(grain.max(1))
         .map(|c| {
-            let mut b = Bins::empty(node).expect("same node");
+            let mut b = Bins::empty_on(node, axis, big).expect("same node");
             b.fill(boxes, c);
             b
         })
@@ -184,7 +198,7 @@ pub fn partition_bins_par(
     j: usize,
     grain: usize,
 ) -> Parts {
-    let (mid, l, r) = partition_par(boxes, ids, &|b: &TriBox| bins.bin(b) <= j, grain);
+    let (mid, l, r) = partition_par(boxes, ids, &|b: &TriBox| bins.goes_left(j, b), grain);
     Parts {
         mid,
         left: l.node(),
@@ -228,15 +242,15 @@ pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut Table, 
     }
 }
 
-/// Whether a step with `n` active rays should fork its children.
+/// Whether a step with `n` active rays should fork: it is in the fork band, the copy budget
+/// allows it, and some thread is idle (no thread is already waiting for a fork's second
+/// half), so that the fork is taken at once rather than run later by this thread.
 pub fn should_fork(ctx: &Ctx, n: usize) -> bool {
     let p = &ctx.opts.parallel;
     n >= p.fork_min_rays
         && n < ctx.data_min_rays
         && ctx.budget.load(Relaxed) >= n as isize
-        && rayon::current_thread_index()
-            .and_then(|i| ctx.pending.get(i))
-            .is_some_and(|c| c.load(Relaxed) == 0)
+        && ctx.workers.idle()
 }
 
 /// Takes `n` records from the fork budget, or says there is not enough.
@@ -252,6 +266,58 @@ fn reserve(ctx: &Ctx, n: usize) -> bool {
 
 fn release(ctx: &Ctx, n: usize) {
     ctx.budget.fetch_add(n as isize, Relaxed);
+}
+
+/// How many pool threads are working on this trace, for the fork decision.
+pub struct Workers {
+    threads: usize,
+    /// Threads running a part of the trace (not waiting in a join).
+    busy: AtomicUsize,
+    /// Forks whose second half has not started yet: each will occupy a thread.
+    pending: AtomicUsize,
+}
+
+impl Workers {
+    /// One thread busy (the caller) out of `threads`.
+    pub fn new(threads: usize) -> Workers {
+        Workers {
+            threads,
+            busy: AtomicUsize::new(1),
+            pending: AtomicUsize::new(0),
+        }
+    }
+
+    /// Whether some thread has nothing to do.
+    fn idle(&self) -> bool {
+        self.busy.load(Relaxed) + self.pending.load(Relaxed) < self.threads
+    }
+}
+
+/// `rayon::join_context` with the bookkeeping of [`Workers`]: the first half continues
+/// this thread's work, the second is pending until it starts (here or on a thief).
+fn join_tracked<RA: Send, RB: Send>(
+    ctx: &Ctx,
+    a: impl FnOnce() -> RA + Send,
+    b: impl FnOnce(bool) -> RB + Send,
+) -> (RA, RB) {
+    let w = &ctx.workers;
+    w.pending.fetch_add(1, Relaxed);
+    let r = rayon::join_context(
+        |_| {
+            let r = a();
+            w.busy.fetch_sub(1, Relaxed);
+            r
+        },
+        |c| {
+            w.pending.fetch_sub(1, Relaxed);
+            w.busy.fetch_add(1, Relaxed);
+            let r = b(c.migrated());
+            w.busy.fetch_sub(1, Relaxed);
+            r
+        },
+    );
+    w.busy.fetch_add(1, Relaxed);
+    r
 }
 
 /// A child's rays copied out of its parent's, with a local hit table and, per copied ray,
@@ -277,22 +343,9 @@ impl Copy {
                 link.push(i as u32);
             }
         } else {
-            filter_copy(
-                parent,
-                &FilterBox::new(&child.node.bounds),
-                &mut rays,
-                &mut link,
-            );
+            filter_copy(parent, &FilterBox::new(&child.node.bounds), &mut rays, &mut link);
         }
-        let hits = rays
-            .iter()
-            .map(|r| Hit {
-                t: r.tmax(),
-                prim: u32::MAX,
-                u: 0.0,
-                v: 0.0,
-            })
-            .collect();
+        let hits = rays.iter().map(|r| open_slot(r.tmax())).collect();
         let tmin = if ptmin.is_empty() {
             Vec::new()
         } else {
@@ -352,8 +405,18 @@ impl Copy {
     }
 }
 
-/// Runs `first` and `second` as a fork (see the module docs).
-pub fn fork<T: LeafTest>(
+/// A hit slot that has found nothing yet, for a ray whose interval ends at `tmax`.
+fn open_slot(tmax: f32) -> Hit {
+    Hit {
+        t: tmax,
+        prim: u32::MAX,
+        u: 0.0,
+        v: 0.0,
+    }
+}
+
+/// A triangle-split fork: `first` and `second` at once (see the module docs).
+pub fn fork_tris<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
     table: &mut Table,
@@ -368,25 +431,18 @@ pub fn fork<T: LeafTest>(
         return;
     }
     let (prays, ptmin): (&[RayRec], &[f32]) = (rays, table.tmin);
-    // This thread now has stealable work until the second child starts somewhere.
-    let pending = rayon::current_thread_index().and_then(|i| ctx.pending.get(i));
-    if let Some(p) = pending {
-        p.fetch_add(1, Relaxed);
-    }
     // The first child's copy is made inside the fork, so that a thief can copy the second
     // child's rays from the same (read-only) parent array at the same time.
-    let (a, b) = rayon::join_context(
-        |_| {
+    let (a, b) = join_tracked(
+        ctx,
+        || {
             let mut a = Copy::make(ctx, prays, ptmin, &first);
             release(ctx, n - a.len());
             a.run::<T>(ctx, first, depth);
             a
         },
-        |c| {
-            if let Some(p) = pending {
-                p.fetch_sub(1, Relaxed);
-            }
-            if !c.migrated() || !reserve(ctx, n) {
+        |migrated| {
+            if !migrated || !reserve(ctx, n) {
                 return Err(second);
             }
             let mut b = Copy::make(ctx, prays, ptmin, &second);
@@ -413,6 +469,111 @@ pub fn fork<T: LeafTest>(
             visit::<T>(ctx, rays, table, second, depth);
         }
     }
+}
+
+/// The median slot index of `rays`, estimated from 63 evenly spaced records.
+fn slot_median(rays: &[RayRec]) -> u32 {
+    let k = 63.min(rays.len());
+    let mut s: Vec<u32> = (0..k)
+        .map(|i| rays[i * rays.len() / k].index() as u32)
+        .collect();
+    let mid = k / 2;
+    *s.select_nth_unstable(mid).1
+}
+
+/// A ray-split fork: the step's rays are split into two halves that are coherent (by slot
+/// index: for camera rays, image bands), and the same node is traversed for each half at
+/// once — the first half with this task's table and id array, the second with a local
+/// table and a copy of the ids. Each half keeps its own front-to-back culling (a
+/// triangle-split fork loses it for the far child); the price is that both halves
+/// partition the node's triangles. Returns false (nothing done) when the rays do not split.
+pub fn fork_rays<T: LeafTest>(
+    ctx: &Ctx,
+    rays: &mut [RayRec],
+    table: &mut Table,
+    ids: &mut [u32],
+    node: &Node,
+    depth: u32,
+) -> bool {
+    let n = rays.len();
+    let cost = n / 2 + ids.len() / 8;
+    if !reserve(ctx, cost) {
+        return false;
+    }
+    let t0 = ctx.clock();
+    let pivot = slot_median(rays);
+    let mut h = 0;
+    for i in 0..n {
+        if (rays[i].index() as u32) < pivot {
+            rays.swap(h, i);
+            h += 1;
+        }
+    }
+    if let Some(s) = ctx.stats {
+        lap(&s.merge_ns, t0);
+    }
+    if h == 0 || h == n {
+        release(ctx, cost);
+        return false;
+    }
+    let (r1, r2) = rays.split_at_mut(h);
+    let ids_copy = ids.to_vec();
+    let ptmin = table.tmin;
+    let (_, b) = join_tracked(
+        ctx,
+        || step::<T>(ctx, r1, table, ids, node, depth),
+        |migrated| {
+            if !migrated {
+                return None;
+            }
+            let mut ids = ids_copy;
+            // Local slots for the second half; `link` remembers the table's.
+            let mut link = Vec::with_capacity(r2.len());
+            let mut hits = Vec::with_capacity(r2.len());
+            let mut tmin = Vec::new();
+            for r in r2.iter_mut() {
+                link.push(r.index() as u32);
+                hits.push(open_slot(r.tmax()));
+                if !ptmin.is_empty() {
+                    tmin.push(ptmin[r.index()]);
+                }
+                r.set_index(hits.len() as u32 - 1);
+            }
+            let mut local = Table {
+                hits: &mut hits,
+                tmin: &tmin,
+            };
+            step::<T>(ctx, r2, &mut local, &mut ids, node, depth);
+            for r in r2.iter_mut() {
+                r.set_index(link[r.index()]);
+            }
+            Some((hits, link))
+        },
+    );
+    let t0 = ctx.clock();
+    match b {
+        Some((hits, link)) => {
+            if let Some(s) = ctx.stats {
+                Stats::add(&s.forks_stolen, 1);
+            }
+            for (h, &slot) in hits.iter().zip(&link) {
+                if h.prim != u32::MAX {
+                    merge_slot(&mut table.hits[slot as usize], *h, ctx.any);
+                }
+            }
+            if let Some(s) = ctx.stats {
+                lap(&s.merge_ns, t0);
+            }
+        }
+        None => {
+            if let Some(s) = ctx.stats {
+                Stats::add(&s.forks_local, 1);
+            }
+            step::<T>(ctx, r2, table, ids, node, depth);
+        }
+    }
+    release(ctx, cost);
+    true
 }
 
 #[cfg(test)]

@@ -18,6 +18,9 @@ use super::tris::TriBox;
 /// Number of bins of the binned splits (Áfra: 32).
 pub const BINS: usize = 32;
 
+/// Candidates of one binning: the `BINS - 1` planes and the size candidate.
+pub const CANDIDATES: usize = BINS;
+
 /// What a traversal step knows about a set of triangles.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Node {
@@ -180,6 +183,18 @@ pub struct Bins {
     scale: f32,
     acc: [Acc; BINS],
     count: [u32; BINS],
+    /// Half-area above which a triangle box counts as big (`+inf`: no size candidate).
+    big_thr: f32,
+    /// The big triangles' bounds and count, and the others'.
+    big: (Acc, u32),
+    small: (Acc, u32),
+}
+
+/// Half the surface area of a triangle box.
+#[inline(always)]
+fn half_area(b: &TriBox) -> f32 {
+    let (x, y, z) = (b.max[0] - b.min[0], b.max[1] - b.min[1], b.max[2] - b.min[2]);
+    x * y + y * z + z * x
 }
 
 impl Bins {
@@ -191,9 +206,19 @@ impl Bins {
         (x as i32).clamp(0, BINS as i32 - 1) as usize
     }
 
-    /// Empty bins over the node's centroid box. `None` when the centroids all coincide.
+    /// Empty bins over the node's centroid box on its widest axis. `None` when the
+    /// centroids all coincide.
     pub fn empty(node: &Node) -> Option<Bins> {
-        let (axis, extent) = split_axis(&node.cents);
+        Bins::empty_on(node, split_axis(&node.cents).0, 0.0)
+    }
+
+    /// Empty bins over the node's centroid box on `axis`. `None` when the centroids all
+    /// coincide on that axis. With `big > 0`, one more candidate separates the triangles
+    /// whose box has more than `big` times the node's surface area from the others: a
+    /// centroid plane cannot isolate a few huge triangles (a room's walls) from many small
+    /// ones, and until they are isolated every box that holds one is as big as they are.
+    pub fn empty_on(node: &Node, axis: usize, big: f32) -> Option<Bins> {
+        let extent = node.cents.max[axis] - node.cents.min[axis];
         if extent.is_nan() || extent <= 0.0 {
             return None;
         }
@@ -203,16 +228,39 @@ impl Bins {
             scale: BINS as f32 * (1.0 - 1.0 / 65536.0) / extent,
             acc: [Acc::EMPTY; BINS],
             count: [0; BINS],
+            big_thr: if big > 0.0 {
+                0.5 * big * node.bounds.area()
+            } else {
+                f32::INFINITY
+            },
+            big: (Acc::EMPTY, 0),
+            small: (Acc::EMPTY, 0),
         })
+    }
+
+    /// Whether a triangle box counts as big for the size candidate.
+    #[inline(always)]
+    pub fn is_big(&self, b: &TriBox) -> bool {
+        half_area(b) > self.big_thr
     }
 
     /// Adds the triangles `ids`.
     pub fn fill(&mut self, boxes: &[TriBox], ids: &[u32]) {
+        let sized = self.big_thr.is_finite();
         for &id in ids {
             let b = &boxes[id as usize];
             let k = self.bin(b);
             self.acc[k].add(b);
             self.count[k] += 1;
+            if sized {
+                let side = if self.is_big(b) {
+                    &mut self.big
+                } else {
+                    &mut self.small
+                };
+                side.0.add(b);
+                side.1 += 1;
+            }
         }
     }
 
@@ -222,18 +270,31 @@ impl Bins {
             self.acc[k].merge(&o.acc[k]);
             self.count[k] += o.count[k];
         }
+        self.big.0.merge(&o.big.0);
+        self.big.1 += o.big.1;
+        self.small.0.merge(&o.small.0);
+        self.small.1 += o.small.1;
     }
 
-    /// Bins `ids`. `None` when the centroids all coincide.
-    pub fn new(boxes: &[TriBox], ids: &[u32], node: &Node) -> Option<Bins> {
-        let mut bins = Bins::empty(node)?;
+    /// Bins `ids` on `axis` (see [`Bins::empty_on`] for `big`). `None` when the centroids
+    /// all coincide on it.
+    pub fn new(
+        boxes: &[TriBox],
+        ids: &[u32],
+        node: &Node,
+        axis: usize,
+        big: f32,
+    ) -> Option<Bins> {
+        let mut bins = Bins::empty_on(node, axis, big)?;
         bins.fill(boxes, ids);
         Some(bins)
     }
 
-    /// For each plane `j` (between bin `j` and `j+1`): the left and right boxes and counts.
+    /// [`CANDIDATES`] candidates: for each plane `j < BINS - 1` (between bin `j` and
+    /// `j+1`) the left and right boxes and counts, then the size candidate (big triangles
+    /// left; empty when there is none).
     pub fn candidates(&self) -> Vec<Candidate> {
-        let mut out = Vec::with_capacity(BINS - 1);
+        let mut out = Vec::with_capacity(CANDIDATES);
         let mut right = [Acc::EMPTY; BINS];
         let mut rc = [0u32; BINS];
         let mut a = Acc::EMPTY;
@@ -256,12 +317,32 @@ impl Bins {
                 n_right: rc[j + 1] as usize,
             });
         }
+        out.push(Candidate {
+            left: self.big.0.bounds(),
+            right: self.small.0.bounds(),
+            n_left: self.big.1 as usize,
+            n_right: self.small.1 as usize,
+        });
         out
     }
 
-    /// Partitions `ids` at plane `j` (bins `0..=j` go left).
+    /// Whether candidate `j` sends box `b` left.
+    #[inline(always)]
+    pub fn goes_left(&self, j: usize, b: &TriBox) -> bool {
+        if j == BINS - 1 {
+            self.is_big(b)
+        } else {
+            self.bin(b) <= j
+        }
+    }
+
+    /// Partitions `ids` by candidate `j`.
     pub fn partition(&self, boxes: &[TriBox], ids: &mut [u32], j: usize) -> Parts {
-        partition_by(boxes, ids, |b| self.bin(b) <= j)
+        if j == BINS - 1 {
+            partition_by(boxes, ids, |b| self.is_big(b))
+        } else {
+            partition_by(boxes, ids, |b| self.bin(b) <= j)
+        }
     }
 }
 
@@ -337,7 +418,7 @@ mod tests {
     fn coincident_centroids_do_not_split() {
         let (boxes, mut ids, node) = setup(&[1.0, 1.0, 1.0]);
         assert!(middle(&boxes, &mut ids, &node).is_none());
-        assert!(Bins::new(&boxes, &ids, &node).is_none());
+        assert!(Bins::new(&boxes, &ids, &node, 0, 0.0).is_none());
     }
 
     #[test]
@@ -361,7 +442,7 @@ mod tests {
             })
             .collect();
         let (boxes, mut ids, node) = setup(&xs);
-        let bins = Bins::new(&boxes, &ids, &node).unwrap();
+        let bins = Bins::new(&boxes, &ids, &node, 0, 0.0).unwrap();
         let cands = bins.candidates();
         let (j, cost) = sah(&cands, &node.bounds).unwrap();
         assert_eq!(cands[j].n_left, 10);

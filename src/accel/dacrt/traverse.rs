@@ -7,17 +7,17 @@
 //! second child's filtering sees the `tmax` values the first child's hits left in the
 //! records, which is what makes front-to-back order pay.
 
-use std::sync::atomic::{AtomicIsize, AtomicU32};
+use std::sync::atomic::AtomicIsize;
 use std::time::Instant;
 
 use crate::geometry::Aabb;
 
 use super::leaf::{leaf, LeafTest, Table};
-use super::options::DacrtOptions;
+use super::options::{DacrtOptions, ForkSplit};
 use super::parallel;
 use super::rays::{filter, FilterBox, RayRec};
 use super::sampling::{sample_pair, sampled_cost, Sampled};
-use super::split::{middle, sah, Bins, Node, Parts};
+use super::split::{middle, sah, split_axis, Bins, Candidate, Node, Parts, CANDIDATES};
 use super::stats::{lap, Stats};
 use super::tris::TriData;
 
@@ -35,8 +35,8 @@ pub struct Ctx<'a> {
     pub parallel: bool,
     /// Ray records that forks may still copy (see `parallel.rs`).
     pub budget: AtomicIsize,
-    /// Per pool thread: its forks whose second child has not started yet (stealable work).
-    pub pending: Vec<AtomicU32>,
+    /// Which threads are busy (the fork decision).
+    pub workers: parallel::Workers,
     /// Steps with at least this many rays work data-parallel; below, they fork. At most the
     /// option's value, and small enough that several forks fit in the copy budget.
     pub data_min_rays: usize,
@@ -90,6 +90,13 @@ pub fn step<T: LeafTest>(
     if rays.len() < o.leaf_rays || ids.len() < o.leaf_tris {
         return leaf_step::<T>(ctx, rays, table, ids);
     }
+    if ctx.parallel
+        && ctx.opts.parallel.split == ForkSplit::Rays
+        && parallel::should_fork(ctx, rays.len())
+        && parallel::fork_rays::<T>(ctx, rays, table, ids, node, depth)
+    {
+        return;
+    }
     let t0 = ctx.clock();
     let plan = plan(ctx, rays, ids, node, depth);
     if let Some(s) = ctx.stats {
@@ -117,8 +124,11 @@ pub fn step<T: LeafTest>(
     } else {
         (right, left)
     };
-    if ctx.parallel && parallel::should_fork(ctx, rays.len()) {
-        return parallel::fork::<T>(ctx, rays, table, first, second, depth);
+    if ctx.parallel
+        && ctx.opts.parallel.split == ForkSplit::Tris
+        && parallel::should_fork(ctx, rays.len())
+    {
+        return parallel::fork_tris::<T>(ctx, rays, table, first, second, depth);
     }
     visit::<T>(ctx, rays, table, first, depth);
     visit::<T>(ctx, rays, table, second, depth);
@@ -215,12 +225,27 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
     let samples = &buf[..ns];
     let mut info: Option<Sampled> = None;
     let parts = if n as f32 > o.sah_ratio * t as f32 {
-        let bins = if ctx.parallel && t >= o.parallel.data_min_tris {
-            parallel::bins_par(boxes, ids, node, o.parallel.grain)?
+        // Áfra bins the widest centroid axis only; `all_axes` bins the three.
+        let axes = if o.all_axes {
+            vec![0, 1, 2]
         } else {
-            Bins::new(boxes, ids, node)?
+            vec![split_axis(&node.cents).0]
         };
-        let cands = bins.candidates();
+        let binned: Vec<Bins> = axes
+            .into_iter()
+            .enumerate()
+            .filter_map(|(i, axis)| {
+                // The size candidate once per node.
+                let big = if i == 0 { o.big_fraction } else { 0.0 };
+                if ctx.parallel && t >= o.parallel.data_min_tris {
+                    parallel::bins_par(boxes, ids, node, axis, big, o.parallel.grain)
+                } else {
+                    Bins::new(boxes, ids, node, axis, big)
+                }
+            })
+            .collect();
+        let per = CANDIDATES;
+        let cands: Vec<Candidate> = binned.iter().flat_map(|b| b.candidates()).collect();
         let j = if ns > 0 && s.cost {
             let (j, si) = sampled_cost(&cands, samples)?;
             info = Some(si);
@@ -232,6 +257,7 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
             }
             j
         };
+        let (bins, j) = (&binned[j / per], j % per);
         if let Some(st) = ctx.stats {
             Stats::add(&st.binned, 1);
         }
@@ -256,9 +282,18 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         Stats::add(&st.sampled, 1);
         Stats::add(&st.box_tests, (ns * 2) as u64);
     }
-    let first_left = match info {
-        Some(si) if s.order => si.nearer_left >= si.nearer_right,
-        _ => afra_first_left(&rays[0], &parts),
+    // A child nested in the other's box goes first: the outer one encloses it (a room
+    // around an object), every ray enters the outer box at once, and neither rule below
+    // sees that the inner one is hit first.
+    let first_left = if contains(&parts.right.bounds, &parts.left.bounds) {
+        true
+    } else if contains(&parts.left.bounds, &parts.right.bounds) {
+        false
+    } else {
+        match info {
+            Some(si) if s.order => si.nearer_left >= si.nearer_right,
+            _ => afra_first_left(&rays[0], &parts),
+        }
     };
     let skip = match info {
         Some(si) if s.skip => [
@@ -287,6 +322,11 @@ fn skip_filtering(o: &DacrtOptions, hits: u32, samples: usize, tris: usize) -> b
         0.5
     };
     alpha > limit
+}
+
+/// Whether `outer` contains `inner`.
+fn contains(outer: &Aabb, inner: &Aabb) -> bool {
+    (0..3).all(|k| outer.min[k] <= inner.min[k] && inner.max[k] <= outer.max[k])
 }
 
 /// Áfra's order (after Wald et al. 2007): on the axis where the children's centres are
