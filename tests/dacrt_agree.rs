@@ -60,8 +60,16 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-sampled-small", sampled_small, 1),
         ("dacrt-par", forced_parallel(small_leaves), 2),
         ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
-        ("dacrt-par-tris", tris_split(forced_parallel(small_leaves)), 2),
-        ("dacrt-sampled-par-tris", tris_split(forced_parallel(sampled_small)), 3),
+        (
+            "dacrt-par-tris",
+            tris_split(forced_parallel(small_leaves)),
+            2,
+        ),
+        (
+            "dacrt-sampled-par-tris",
+            tris_split(forced_parallel(sampled_small)),
+            3,
+        ),
     ]
 }
 

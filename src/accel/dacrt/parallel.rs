@@ -343,7 +343,12 @@ impl Copy {
                 link.push(i as u32);
             }
         } else {
-            filter_copy(parent, &FilterBox::new(&child.node.bounds), &mut rays, &mut link);
+            filter_copy(
+                parent,
+                &FilterBox::new(&child.node.bounds),
+                &mut rays,
+                &mut link,
+            );
         }
         let hits = rays.iter().map(|r| open_slot(r.tmax())).collect();
         let tmin = if ptmin.is_empty() {

@@ -193,7 +193,11 @@ pub struct Bins {
 /// Half the surface area of a triangle box.
 #[inline(always)]
 fn half_area(b: &TriBox) -> f32 {
-    let (x, y, z) = (b.max[0] - b.min[0], b.max[1] - b.min[1], b.max[2] - b.min[2]);
+    let (x, y, z) = (
+        b.max[0] - b.min[0],
+        b.max[1] - b.min[1],
+        b.max[2] - b.min[2],
+    );
     x * y + y * z + z * x
 }
 
@@ -278,13 +282,7 @@ impl Bins {
 
     /// Bins `ids` on `axis` (see [`Bins::empty_on`] for `big`). `None` when the centroids
     /// all coincide on it.
-    pub fn new(
-        boxes: &[TriBox],
-        ids: &[u32],
-        node: &Node,
-        axis: usize,
-        big: f32,
-    ) -> Option<Bins> {
+    pub fn new(boxes: &[TriBox], ids: &[u32], node: &Node, axis: usize, big: f32) -> Option<Bins> {
         let mut bins = Bins::empty_on(node, axis, big)?;
         bins.fill(boxes, ids);
         Some(bins)
