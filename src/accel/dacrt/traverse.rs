@@ -262,7 +262,7 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
             Stats::add(&st.binned, 1);
         }
         if ctx.parallel && t >= o.parallel.data_min_tris {
-            parallel::partition_bins_par(&bins, boxes, ids, j, o.parallel.grain)
+            parallel::partition_bins_par(bins, boxes, ids, j, o.parallel.grain)
         } else {
             bins.partition(boxes, ids, j)
         }
