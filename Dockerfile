@@ -12,7 +12,7 @@ FROM debian:bookworm-slim
 RUN apt-get update && apt-get install -y --no-install-recommends libembree3-3 && rm -rf /var/lib/apt/lists/*
 COPY --from=build /src/target/release/rayd /usr/local/bin/rayd
 COPY scenes /usr/share/rayd/scenes
-WORKDIR /work
-# Until the service lands, the default run renders a sample scene into /work.
+WORKDIR /data
+# Until the service lands, the default run renders a sample scene into /data.
 ENTRYPOINT ["rayd"]
-CMD ["render", "/usr/share/rayd/scenes/Fox.glb", "-o", "/work/fox.png"]
+CMD ["render", "/usr/share/rayd/scenes/Fox.glb", "-o", "/data/fox.png"]
