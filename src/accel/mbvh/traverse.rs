@@ -16,8 +16,8 @@
 //!
 //! `any` pushes the hit children unsorted and stops at the first triangle hit.
 
-use super::layout::{leaf_range, TravTree};
-use super::ray::BoxRay;
+use super::layout::{leaf_lanes, Pack, TravTree};
+use super::ray::SlabConsts;
 use super::slab::{Lanes, SlabTest};
 use super::stack::{self, sort_top, sort_top3, sort_top4, Stack};
 use crate::accel::triangle::{PreparedRay, PreparedRay8, Tri8, TriTest};
@@ -58,9 +58,20 @@ fn prefetch_child<const N: usize, T>(tree: &TravTree<N, T>, id: i32) {
         if let Some(n) = tree.nodes.get(id as usize) {
             simd::prefetch(n);
         }
-    } else if let Some(p) = tree.packs.get(leaf_range(id).0) {
+    } else if let Some(p) = tree.packs.get(leaf_lanes(id).0 >> 3) {
         simd::prefetch(p);
     }
+}
+
+/// The first pack of leaf `id`, the mask of the leaf's lanes in it, and how many of its
+/// triangles are left for the next pack (a leaf of up to 8 triangles lies in one pack; a
+/// larger one starts a pack and ends in the next).
+#[inline(always)]
+fn leaf_head(id: i32) -> (usize, u32, usize) {
+    let (start, n) = leaf_lanes(id);
+    let lane = start & 7;
+    let first = n.min(8 - lane);
+    (start >> 3, ((1u32 << first) - 1) << lane, n - first)
 }
 
 /// The closest hit of `ray` (contract §2).
@@ -78,7 +89,7 @@ where
     if r.is_empty() {
         return Hit::MISS;
     }
-    let br = BoxRay::new(&r, tree.scale);
+    let br = SlabConsts::new(s, &r, tree.scale);
     let vr = <Lanes<N> as SlabTest<N>>::ray(s, &br);
     let r8 = PreparedRay8::new(s, &r);
     let nodes = &tree.nodes[..];
@@ -148,11 +159,16 @@ where
                 continue;
             }
         } else {
-            let (first, count) = leaf_range(cur);
-            for (k, pack) in packs[first..first + count].iter().enumerate() {
+            let (mut p, mut lanes, mut rest) = leaf_head(cur);
+            loop {
+                let Pack(pack) = &packs[p];
                 let (m, t) = T::intersect8(s, &r8, pack, tmax8);
-                let mut bits = m.bitmask();
+                let mut bits = m.bitmask() & lanes;
                 if bits == 0 {
+                    if rest == 0 {
+                        break;
+                    }
+                    (p, lanes, rest) = (p + 1, (1 << rest) - 1, 0);
                     continue;
                 }
                 let ts = t.to_array();
@@ -164,10 +180,14 @@ where
                     if t < best_t || (t == best_t && id < best_id) {
                         best_t = t;
                         best_id = id;
-                        best_at = Some((first + k, lane));
+                        best_at = Some((p, lane));
                     }
                 }
                 tmax8 = s.splat_f8(best_t);
+                if rest == 0 {
+                    break;
+                }
+                (p, lanes, rest) = (p + 1, (1 << rest) - 1, 0);
             }
         }
         // Pop the nearest entry that is not beyond the closest hit.
@@ -185,7 +205,7 @@ where
         }
     }
     match best_at {
-        Some((p, lane)) => fields(&r, &packs[p], lane),
+        Some((p, lane)) => fields(&r, &packs[p].0, lane),
         None => Hit::MISS,
     }
 }
@@ -205,7 +225,7 @@ where
     if r.is_empty() {
         return None;
     }
-    let br = BoxRay::new(&r, tree.scale);
+    let br = SlabConsts::new(s, &r, tree.scale);
     let vr = <Lanes<N> as SlabTest<N>>::ray(s, &br);
     let r8 = PreparedRay8::new(s, &r);
     let nodes = &tree.nodes[..];
@@ -227,12 +247,17 @@ where
                 continue;
             }
         } else {
-            let (first, count) = leaf_range(cur);
-            for (k, pack) in packs[first..first + count].iter().enumerate() {
-                let (m, _) = T::intersect8(s, &r8, pack, tmax8);
-                if m.any() {
-                    return Some((r, first + k, m.bitmask().trailing_zeros() as usize));
+            let (mut p, mut lanes, mut rest) = leaf_head(cur);
+            loop {
+                let (m, _) = T::intersect8(s, &r8, &packs[p].0, tmax8);
+                let bits = m.bitmask() & lanes;
+                if bits != 0 {
+                    return Some((r, p, bits.trailing_zeros() as usize));
                 }
+                if rest == 0 {
+                    break;
+                }
+                (p, lanes, rest) = (p + 1, (1 << rest) - 1, 0);
             }
         }
         if sp == 0 {
