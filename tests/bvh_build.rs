@@ -222,6 +222,44 @@ fn huge_and_tiny_coordinates() {
 }
 
 #[test]
+fn depth_stays_bounded_on_adversarial_input() {
+    // Triangles in a geometric progression: every SAH split peels off a few far ones,
+    // which would make a tree as deep as the scene is long without the depth guard.
+    let mut tris: Vec<Triangle> = (0..4000)
+        .map(|i| {
+            let x = 1.01f32.powi(i);
+            tri([x, 0.0, 0.0], [x * 1.001, 0.0, 0.0], [x, x * 0.001, 0.0])
+        })
+        .collect();
+    // Doubling distances across the whole exponent range.
+    tris.extend((-120..120).map(|i| {
+        let x = 2f32.powi(i);
+        tri(
+            [x, 5.0, 0.0],
+            [x * 1.001, 5.0, 0.0],
+            [x, 5.0 + x * 0.25, 0.0],
+        )
+    }));
+    for q in QUALITIES {
+        let limit = rayd::accel::bvh::DEPTH_LIMIT as usize + 32;
+        let m = Mbvh8::build(&tris, q);
+        m.validate(&tris).unwrap();
+        assert!(
+            m.stats().max_depth <= limit,
+            "{q:?}: {}",
+            m.stats().max_depth
+        );
+        let b = Bvh2::build(&tris, q);
+        b.validate(&tris).unwrap();
+        assert!(
+            b.stats().max_depth <= limit,
+            "{q:?}: {}",
+            b.stats().max_depth
+        );
+    }
+}
+
+#[test]
 fn leaves_respect_the_size_limit_and_sah_stops_early() {
     // A dense cluster of 1000 tiny triangles: every leaf has at most 2N of them.
     let tris = soup(1000, 1.0, 0.001, 11);
@@ -590,6 +628,7 @@ fn load_glb(path: &std::path::Path) -> Vec<Triangle> {
     out
 }
 
+/// Best wall time over `reps` runs, and the last result.
 fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     let mut best = f64::INFINITY;
     let mut last = None;
@@ -602,6 +641,11 @@ fn time_best<T>(reps: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     (best, last.unwrap())
 }
 
+/// Times the builds (and a refit) on generated and real scenes. Environment:
+/// `RAYD_SCENES` (folder with the test scenes), `RAYD_MEASURE` (scene name filter),
+/// `RAYD_QUALITY` (fast|sah|sbvh), `RAYD_LAYOUTS` (e.g. `mbvh8,bvh2`), `RAYD_THREADS`
+/// (e.g. `1,2`), `RAYD_REPS` (best of), `RAYD_DUMP_DIR` (write each scene's raw positions,
+/// 9 × f32 per triangle, to time other builders on the same input).
 #[test]
 #[ignore]
 fn measure_build_times() {
@@ -632,30 +676,63 @@ fn measure_build_times() {
         if !only.is_empty() && !name.contains(&only) {
             continue;
         }
-        for threads in [1, 2] {
+        // Raw positions (9 × f32 per triangle) for timing other builders on the same input.
+        if let Ok(dir) = std::env::var("RAYD_DUMP_DIR") {
+            let bytes: Vec<u8> = tris
+                .iter()
+                .flat_map(|t| t.v.iter().flatten().flat_map(|x| x.to_le_bytes()))
+                .collect();
+            std::fs::write(
+                std::path::Path::new(&dir).join(format!("{name}.raw")),
+                bytes,
+            )
+            .unwrap();
+        }
+        let threads_list: Vec<usize> = std::env::var("RAYD_THREADS")
+            .unwrap_or_else(|_| "1,2".into())
+            .split(',')
+            .filter_map(|t| t.parse().ok())
+            .collect();
+        for &threads in &threads_list {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .build()
                 .unwrap();
             for q in QUALITIES {
-                let (t8, m8) = pool.install(|| time_best(reps, || Mbvh::<8>::build(tris, q)));
-                let (t4, m4) = pool.install(|| time_best(reps, || Mbvh::<4>::build(tris, q)));
-                let (t2, b2) = pool.install(|| time_best(reps, || Bvh2::build(tris, q)));
-                let (tr, _) = pool.install(|| {
-                    let mut m = m8.clone();
-                    time_best(reps, move || m.refit(tris).unwrap())
-                });
-                println!(
-                    "{name:>22} {:>8} tris  threads={threads} {:>4}: mbvh8 {:7.1} ms  mbvh4 {:7.1} ms  bvh2 {:7.1} ms  refit8 {:6.1} ms",
+                let want = std::env::var("RAYD_QUALITY").unwrap_or_default();
+                if !want.is_empty() && want != q.name() {
+                    continue;
+                }
+                let layouts =
+                    std::env::var("RAYD_LAYOUTS").unwrap_or_else(|_| "mbvh8,mbvh4,bvh2".into());
+                let mut line = format!(
+                    "{name:>22} {:>8} tris  threads={threads} {:>4}:",
                     tris.len(),
-                    q.name(),
-                    t8 * 1e3,
-                    t4 * 1e3,
-                    t2 * 1e3,
-                    tr * 1e3
+                    q.name()
                 );
-                if threads == 1 {
-                    for s in [m8.stats(), m4.stats(), b2.stats()] {
+                let mut stats = Vec::new();
+                if layouts.contains("mbvh8") {
+                    let (t, m) = pool.install(|| time_best(reps, || Mbvh::<8>::build(tris, q)));
+                    let (tr, _) = pool.install(|| {
+                        let mut m = m.clone();
+                        time_best(reps, move || m.refit(tris).unwrap())
+                    });
+                    line += &format!("  mbvh8 {:7.1} ms  refit8 {:6.1} ms", t * 1e3, tr * 1e3);
+                    stats.push(m.stats());
+                }
+                if layouts.contains("mbvh4") {
+                    let (t, m) = pool.install(|| time_best(reps, || Mbvh::<4>::build(tris, q)));
+                    line += &format!("  mbvh4 {:7.1} ms", t * 1e3);
+                    stats.push(m.stats());
+                }
+                if layouts.contains("bvh2") {
+                    let (t, b) = pool.install(|| time_best(reps, || Bvh2::build(tris, q)));
+                    line += &format!("  bvh2 {:7.1} ms", t * 1e3);
+                    stats.push(b.stats());
+                }
+                println!("{line}");
+                if threads == threads_list[0] {
+                    for s in stats {
                         println!("    {}", serde_json::to_string(&s).unwrap());
                     }
                 }

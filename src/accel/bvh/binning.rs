@@ -9,7 +9,7 @@
 use rayon::prelude::*;
 
 use super::build::{
-    bounds_of, grow, half_area, intersect, inv_half_area, union, CostModel, Range, Ref, Splitter,
+    bounds_of, fmax, fmin, half_area, intersect, inv_half_area, CostModel, Range, Ref, Splitter, B4,
 };
 use super::sbvh;
 use crate::geometry::{Aabb, Triangle};
@@ -36,32 +36,35 @@ impl Default for Centroids {
     }
 }
 
-/// Maps a coordinate to one of [`BINS`] bins along each axis. Axes without extent get
+/// Maps a coordinate to one of a fixed number of bins along each axis. Axes without extent get
 /// scale 0 and put everything in bin 0 (the sweep then finds no split on them).
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct BinMap {
-    /// Coordinate of the lower edge of bin 0.
-    pub lo: [f32; 3],
-    /// Bins per unit length.
-    pub scale: [f32; 3],
+    /// Coordinate of the lower edge of bin 0 (lane 3 unused, 0).
+    pub lo: [f32; 4],
+    /// Bins per unit length (lane 3 unused, 0).
+    pub scale: [f32; 4],
     /// Bin width (spatial splits: the planes are `lo + i·width`).
     pub width: [f32; 3],
+    /// Index of the last bin, as a float.
+    pub last: f32,
 }
 
 impl BinMap {
-    /// Bins spanning `b`; `shrink` < 1 keeps the upper edge inside the last bin.
-    pub fn new(b: &Aabb, shrink: f64) -> BinMap {
+    /// `bins` bins spanning `b`; `shrink` < 1 keeps the upper edge inside the last bin.
+    pub fn new(b: &Aabb, bins: usize, shrink: f64) -> BinMap {
         let mut m = BinMap {
-            lo: b.min,
+            lo: [b.min[0], b.min[1], b.min[2], 0.0],
+            last: (bins - 1) as f32,
             ..BinMap::default()
         };
         for a in 0..3 {
             let ext = b.max[a] as f64 - b.min[a] as f64;
             if ext > 0.0 && ext.is_finite() {
-                let s = (BINS as f64 * shrink / ext) as f32;
+                let s = (bins as f64 * shrink / ext) as f32;
                 if s.is_finite() {
                     m.scale[a] = s;
-                    m.width[a] = (ext / BINS as f64) as f32;
+                    m.width[a] = (ext / bins as f64) as f32;
                 }
             }
         }
@@ -71,8 +74,38 @@ impl BinMap {
     /// Bin of coordinate `x` along `axis`, clamped to the valid bins.
     #[inline(always)]
     pub fn bin(&self, x: f32, axis: usize) -> usize {
-        let k = ((x - self.lo[axis]) * self.scale[axis]) as i32;
-        k.clamp(0, BINS as i32 - 1) as usize
+        to_bin((x - self.lo[axis]) * self.scale[axis], self.last) as usize
+    }
+
+    /// Bins of a reference's centroid along the three axes: [`BinMap::bin`] of
+    /// [`Ref::centroid`], computed on all lanes at once (the same IEEE operations per
+    /// lane, so the results are identical).
+    #[inline(always)]
+    pub fn centroid_bins(&self, r: &Ref) -> [usize; 3] {
+        let k: [u32; 4] = std::array::from_fn(|j| {
+            let c = r.lo[j] * 0.5 + r.hi[j] * 0.5;
+            to_bin((c - self.lo[j]) * self.scale[j], self.last)
+        });
+        [k[0] as usize, k[1] as usize, k[2] as usize]
+    }
+
+    /// The largest centroid coordinate along `axis`, within the centroid bounds `cent`,
+    /// whose bin is below `b` (1 ≤ `b` ≤ last bin). [`BinMap::bin`] is monotone, so
+    /// `bin(c) < b` exactly when `c <= last_below(..)`: the partition compares one float
+    /// instead of recomputing bins, and still agrees with the binning on every reference.
+    /// Found by bisection over the ordered bit patterns of f32.
+    pub fn last_below(&self, axis: usize, b: usize, cent: &Aabb) -> f32 {
+        let (mut lo, mut hi) = (ordered(cent.min[axis]), ordered(cent.max[axis]));
+        debug_assert!(self.bin(unordered(lo), axis) < b && self.bin(unordered(hi), axis) >= b);
+        while hi - lo > 1 {
+            let mid = lo + (hi - lo) / 2;
+            if self.bin(unordered(mid), axis) < b {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        unordered(lo)
     }
 
     /// The plane between bins `i - 1` and `i` along `axis`.
@@ -82,80 +115,205 @@ impl BinMap {
     }
 }
 
-/// Per-bin boxes and reference counts along each axis. For object bins `enter` is the
-/// count and `exit` is unused; for spatial bins (SBVH) a reference enters at the bin of
-/// its lower corner and exits at the bin of its upper corner.
-#[derive(Clone)]
-pub(crate) struct Bins {
-    /// Box of what fell in each bin.
-    pub boxes: [[Aabb; BINS]; 3],
-    /// References starting in each bin.
-    pub enter: [[u32; BINS]; 3],
-    /// References ending in each bin (spatial bins only).
-    pub exit: [[u32; BINS]; 3],
+/// Bin index of `f` (a coordinate in bin units from the lower edge): `⌊f⌋` clamped to
+/// `0..=last` (at most `BINS - 1`), NaN to 0. Computed as round-to-nearest of `f − 0.5` through the f32
+/// mantissa (adding 2^23 leaves the rounded integer in the low mantissa bits) instead of
+/// a saturating float-to-int cast: this stays in vector registers when the compiler
+/// does four lanes at once, and it is a monotone function of `f`, which is all binning
+/// and partitioning need to agree.
+#[inline(always)]
+fn to_bin(f: f32, last: f32) -> u32 {
+    let f = fmin(fmax(f - 0.5, 0.0), last);
+    (f + 8_388_608.0).to_bits() & (BINS as u32 - 1)
 }
 
-impl Bins {
+/// Object bins: per-bin boxes and reference counts along each axis.
+#[derive(Clone)]
+pub(crate) struct ObjectBins {
+    /// Box of the references whose centroid fell in each bin.
+    pub boxes: [[B4; BINS]; 3],
+    /// References per bin.
+    pub count: [[u32; BINS]; 3],
+}
+
+impl ObjectBins {
     /// Empty bins.
-    pub fn new() -> Bins {
-        Bins {
-            boxes: [[Aabb::EMPTY; BINS]; 3],
-            enter: [[0; BINS]; 3],
-            exit: [[0; BINS]; 3],
+    pub fn new() -> Self {
+        ObjectBins {
+            boxes: [[B4::EMPTY; BINS]; 3],
+            count: [[0; BINS]; 3],
         }
     }
 
     /// Adds bins `o` to these.
-    pub fn merge(mut self, o: Bins) -> Bins {
+    pub fn merge(mut self, o: Self) -> Self {
         for a in 0..3 {
             for i in 0..BINS {
-                self.boxes[a][i] = union(&self.boxes[a][i], &o.boxes[a][i]);
-                self.enter[a][i] += o.enter[a][i];
-                self.exit[a][i] += o.exit[a][i];
+                self.boxes[a][i].grow(&o.boxes[a][i]);
+                self.count[a][i] += o.count[a][i];
             }
         }
         self
     }
 
-    /// Object binning of `refs` by centroid.
-    fn add_objects(&mut self, refs: &[Ref], map: &BinMap) {
-        for r in refs {
-            for a in 0..3 {
-                let k = map.bin(r.centroid(a), a);
-                grow(&mut self.boxes[a][k], &r.lo, &r.hi);
-                self.enter[a][k] += 1;
+    /// Bins `refs` by centroid.
+    fn add(&mut self, refs: &[Ref], map: &BinMap) {
+        if refs.len() < 256 {
+            for r in refs {
+                self.add_one(r, map);
             }
+            return;
         }
+        // Two sets of bins, alternating: consecutive references often land in the same
+        // bin, and updating one bin twice in a row waits on the store of the first
+        // update. Measured about twice as fast on long ranges.
+        let mut other = ObjectBins::new();
+        let mut pairs = refs.chunks_exact(2);
+        for p in &mut pairs {
+            self.add_one(&p[0], map);
+            other.add_one(&p[1], map);
+        }
+        for r in pairs.remainder() {
+            self.add_one(r, map);
+        }
+        *self = std::mem::replace(self, ObjectBins::new()).merge(other);
     }
 
-    /// Box of bins `..i` and of bins `i..` along `axis`.
-    pub fn halves(&self, axis: usize, i: usize) -> (Aabb, Aabb) {
-        let mut l = Aabb::EMPTY;
-        let mut r = Aabb::EMPTY;
-        for (j, b) in self.boxes[axis].iter().enumerate() {
-            if j < i {
-                l = union(&l, b);
-            } else {
-                r = union(&r, b);
-            }
+    #[inline(always)]
+    fn add_one(&mut self, r: &Ref, map: &BinMap) {
+        let b = r.b4();
+        let k = map.centroid_bins(r);
+        for (a, &k) in k.iter().enumerate() {
+            self.boxes[a][k].grow(&b);
+            self.count[a][k] += 1;
         }
-        (l, r)
     }
 }
 
-/// Object bins of `refs`, in parallel for long ranges.
-fn object_bins(refs: &[Ref], map: &BinMap) -> Bins {
-    if refs.len() < PAR_BIN {
-        let mut b = Bins::new();
-        b.add_objects(refs, map);
-        return b;
+/// Box of bins `..i` and of bins `i..`.
+pub(crate) fn halves(boxes: &[B4], i: usize) -> (Aabb, Aabb) {
+    let mut l = B4::EMPTY;
+    let mut r = B4::EMPTY;
+    for (j, b) in boxes.iter().enumerate() {
+        if j < i {
+            l.grow(b);
+        } else {
+            r.grow(b);
+        }
     }
-    refs.par_chunks(BIN_CHUNK)
-        .fold(Bins::new, |mut b, c| {
-            b.add_objects(c, map);
-            b
-        })
-        .reduce(Bins::new, Bins::merge)
+    (l.aabb(), r.aabb())
+}
+
+/// Half the surface area of a [`B4`] (f64, 0 when empty).
+#[inline(always)]
+pub(crate) fn half_area4(b: &B4) -> f64 {
+    let e = [
+        b.hi[0] as f64 - b.lo[0] as f64,
+        b.hi[1] as f64 - b.lo[1] as f64,
+        b.hi[2] as f64 - b.lo[2] as f64,
+    ];
+    if e[0] >= 0.0 && e[1] >= 0.0 && e[2] >= 0.0 {
+        e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+    } else {
+        0.0
+    }
+}
+
+/// Ranges of at most this many references are split by an exact SAH sweep over their
+/// sorted centroids instead of bins: cheaper than clearing and sweeping 3 × 32 bins, and
+/// exact. Most candidates are this small.
+pub(crate) const SMALL: usize = 24;
+
+/// Ranges of at most this many references (but more than [`SMALL`]) are binned with
+/// `BINS / 2` bins: clearing and sweeping bins costs as much as binning them there.
+const FEW: usize = 128;
+
+/// The best split of a small range by an exact sweep: (cost S, left mask), where bit `i`
+/// of the mask says that the reference at position `i` goes left.
+fn exact_plan(refs: &[Ref], bounds: &Aabb, inv_area: f64, cost: &CostModel) -> Option<(f64, u32)> {
+    if f32_areas(bounds) {
+        exact_sweep::<true>(refs, inv_area, cost)
+    } else {
+        exact_sweep::<false>(refs, inv_area, cost)
+    }
+}
+
+/// Whether areas of boxes inside `bounds` may be computed in f32: its size keeps them far
+/// from overflow and underflow (nearly always; fewer instructions than f64). Otherwise
+/// they are computed in f64.
+fn f32_areas(bounds: &Aabb) -> bool {
+    let e = bounds.extent();
+    (1e-9..1e9).contains(&e[0].max(e[1]).max(e[2]))
+}
+
+/// Half the area of a non-empty box, in f32 (`F32`) or f64.
+#[inline(always)]
+fn area_of<const F32: bool>(b: &B4) -> f64 {
+    if F32 {
+        let e: [f32; 4] = std::array::from_fn(|k| b.hi[k] - b.lo[k]);
+        (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) as f64
+    } else {
+        half_area4(b)
+    }
+}
+
+fn exact_sweep<const F32: bool>(
+    refs: &[Ref],
+    inv_area: f64,
+    cost: &CostModel,
+) -> Option<(f64, u32)> {
+    let n = refs.len();
+    debug_assert!((2..=SMALL).contains(&n));
+    let mut best: Option<(f64, usize, usize)> = None;
+    let mut keys = [[0u64; SMALL]; 3];
+    let mut r_area = [0.0f64; SMALL];
+    for (a, keys) in keys.iter_mut().enumerate() {
+        // Centroid in an order-preserving integer form, then position: a strict order.
+        for (i, (k, r)) in keys.iter_mut().zip(refs).enumerate() {
+            *k = ((ordered(r.centroid(a)) as u64) << 32) | i as u64;
+        }
+        let keys = &mut keys[..n];
+        keys.sort_unstable();
+        let at = |k: u64| refs[(k & 0xff) as usize].b4();
+        let mut acc = B4::EMPTY;
+        for k in (1..n).rev() {
+            acc.grow(&at(keys[k]));
+            r_area[k] = area_of::<F32>(&acc);
+        }
+        acc = B4::EMPTY;
+        for k in 1..n {
+            acc.grow(&at(keys[k - 1]));
+            let s = (area_of::<F32>(&acc) * cost.blocks(k as u32)
+                + r_area[k] * cost.blocks((n - k) as u32))
+                * inv_area;
+            if best.map_or(true, |b| s < b.0) {
+                best = Some((s, a, k));
+            }
+        }
+    }
+    best.map(|(s, a, k)| {
+        let mask = keys[a][..k]
+            .iter()
+            .fold(0u32, |m, &key| m | 1 << (key & 0xff));
+        (s, mask)
+    })
+}
+
+/// Maps an f32 to a u32 with the same order (for finite values).
+#[inline(always)]
+fn ordered(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b >> 31 == 1 {
+        !b
+    } else {
+        b | 1 << 31
+    }
+}
+
+/// The inverse of [`ordered`].
+#[inline(always)]
+fn unordered(u: u32) -> f32 {
+    f32::from_bits(if u >> 31 == 1 { u & !(1 << 31) } else { !u })
 }
 
 /// The cheapest split position along one axis.
@@ -172,34 +330,55 @@ pub(crate) struct SweepBest {
 }
 
 /// Sweeps the bins of one axis: the split between bins `i-1` and `i` has `Σ enter[..i]`
-/// references on the left and `Σ exit[i..]` on the right.
+/// references on the left and `Σ exit[i..]` on the right. `bounds` is the range's box
+/// (it picks f32 or f64 areas, as [`exact_plan`] does).
 pub(crate) fn sweep(
-    boxes: &[Aabb; BINS],
-    enter: &[u32; BINS],
-    exit: &[u32; BINS],
+    boxes: &[B4],
+    enter: &[u32],
+    exit: &[u32],
+    bounds: &Aabb,
     inv_area: f64,
     cost: &CostModel,
 ) -> Option<SweepBest> {
+    if f32_areas(bounds) {
+        sweep_with::<true>(boxes, enter, exit, inv_area, cost)
+    } else {
+        sweep_with::<false>(boxes, enter, exit, inv_area, cost)
+    }
+}
+
+fn sweep_with<const F32: bool>(
+    boxes: &[B4],
+    enter: &[u32],
+    exit: &[u32],
+    inv_area: f64,
+    cost: &CostModel,
+) -> Option<SweepBest> {
+    let bins = boxes.len();
+    debug_assert!(bins <= BINS && enter.len() == bins && exit.len() == bins);
     let mut r_area = [0.0f64; BINS];
     let mut r_n = [0u32; BINS];
-    let mut acc = Aabb::EMPTY;
+    let mut acc = B4::EMPTY;
     let mut n = 0;
-    for i in (1..BINS).rev() {
-        acc = union(&acc, &boxes[i]);
+    for i in (1..bins).rev() {
+        acc.grow(&boxes[i]);
         n += exit[i];
-        r_area[i] = half_area(&acc);
         r_n[i] = n;
+        if n > 0 {
+            r_area[i] = area_of::<F32>(&acc);
+        }
     }
     let mut best: Option<SweepBest> = None;
-    acc = Aabb::EMPTY;
+    acc = B4::EMPTY;
     n = 0;
-    for i in 1..BINS {
-        acc = union(&acc, &boxes[i - 1]);
+    for i in 1..bins {
+        acc.grow(&boxes[i - 1]);
         n += enter[i - 1];
         if n == 0 || r_n[i] == 0 {
             continue;
         }
-        let s = (half_area(&acc) * cost.blocks(n) + r_area[i] * cost.blocks(r_n[i])) * inv_area;
+        let s =
+            (area_of::<F32>(&acc) * cost.blocks(n) + r_area[i] * cost.blocks(r_n[i])) * inv_area;
         if best.map_or(true, |b| s < b.s) {
             best = Some(SweepBest {
                 bin: i,
@@ -239,6 +418,12 @@ pub(crate) enum SahPlan {
     /// the depth guard).
     #[default]
     Median,
+    /// Exact split of a small range: the references at the positions whose bit is set
+    /// go left.
+    Exact {
+        /// Bit `i` set: the reference at position `i` goes left.
+        mask: u32,
+    },
     /// Object split: references whose centroid bin is below `bin` go left.
     Object {
         /// Split axis.
@@ -318,22 +503,54 @@ impl Splitter for SahSplitter<'_> {
             return (SahPlan::Median, FORCED_ONLY);
         }
         let inv_area = inv_half_area(&r.bounds);
-        let map = BinMap::new(&r.info.0, 1.0 - 1e-6);
+        if refs.len() <= SMALL {
+            return match exact_plan(refs, &r.bounds, inv_area, cost) {
+                Some((s, mask)) => (SahPlan::Exact { mask }, s),
+                None => (SahPlan::Median, FORCED_ONLY),
+            };
+        }
+        let bins = if refs.len() <= FEW { BINS / 2 } else { BINS };
+        let map = BinMap::new(&r.info.0, bins, 1.0 - 1e-6);
         let mut best: Option<(usize, SweepBest)> = None;
-        let mut bins = None;
+        let mut overlap = f64::INFINITY;
         if map.scale.iter().any(|&s| s > 0.0) {
-            let b = object_bins(refs, &map);
+            let mut serial;
+            let parallel;
+            let b = if refs.len() < PAR_BIN {
+                serial = ObjectBins::new();
+                serial.add(refs, &map);
+                &serial
+            } else {
+                parallel = refs
+                    .par_chunks(BIN_CHUNK)
+                    .fold(ObjectBins::new, |mut b, c| {
+                        b.add(c, &map);
+                        b
+                    })
+                    .reduce(ObjectBins::new, ObjectBins::merge);
+                &parallel
+            };
             for a in 0..3 {
                 if map.scale[a] == 0.0 {
                     continue;
                 }
-                if let Some(s) = sweep(&b.boxes[a], &b.enter[a], &b.enter[a], inv_area, cost) {
+                if let Some(s) = sweep(
+                    &b.boxes[a][..bins],
+                    &b.count[a][..bins],
+                    &b.count[a][..bins],
+                    &r.bounds,
+                    inv_area,
+                    cost,
+                ) {
                     if best.map_or(true, |(_, o)| s.s < o.s) {
                         best = Some((a, s));
                     }
                 }
             }
-            bins = Some(b);
+            if let Some((a, s)) = best {
+                let (l, rr) = halves(&b.boxes[a][..bins], s.bin);
+                overlap = half_area(&intersect(&l, &rr));
+            }
         }
         let mut out = best.map(|(a, s)| {
             (
@@ -346,19 +563,10 @@ impl Splitter for SahSplitter<'_> {
             )
         });
         let room = r.cap - r.begin;
-        if self.spatial && room > r.n() {
-            let overlap = match (best, &bins) {
-                (Some((a, s)), Some(b)) => {
-                    let (l, rr) = b.halves(a, s.bin);
-                    half_area(&intersect(&l, &rr))
-                }
-                _ => f64::INFINITY,
-            };
-            if overlap > self.min_overlap {
-                if let Some((p, s)) = sbvh::spatial_plan(self.tris, refs, r, cost, inv_area, room) {
-                    if out.map_or(true, |(_, so)| s < so) {
-                        out = Some((p, s));
-                    }
+        if self.spatial && room > r.n() && overlap > self.min_overlap {
+            if let Some((p, s)) = sbvh::spatial_plan(self.tris, refs, r, cost, inv_area, room) {
+                if out.map_or(true, |(_, so)| s < so) {
+                    out = Some((p, s));
                 }
             }
         }
@@ -372,10 +580,13 @@ impl Splitter for SahSplitter<'_> {
         plan: &SahPlan,
     ) -> [Range<Centroids>; 2] {
         let n = r.n() as usize;
+        let mut bounds = None;
         let (mut nl, mut nr) = match *plan {
             SahPlan::Object { axis, bin, map } => {
                 let (a, b) = (axis as usize, bin as usize);
-                let nl = partition(&mut refs[..n], |x| map.bin(x.centroid(a), a) < b);
+                let t = map.last_below(a, b, &r.info.0);
+                let (nl, bx) = partition_bounds::<true>(&mut refs[..n], |x| x.centroid(a) <= t);
+                bounds = Some(bx);
                 (nl, n - nl)
             }
             SahPlan::Spatial {
@@ -396,6 +607,14 @@ impl Splitter for SahSplitter<'_> {
                 (lbox, rbox),
                 (nl, nr),
             ),
+            SahPlan::Exact { mask } => {
+                for (i, r) in refs[..n].iter_mut().enumerate() {
+                    r.set_aux((mask >> i) & 1);
+                }
+                let (nl, bx) = partition_bounds::<false>(&mut refs[..n], |x| x.aux() == 1);
+                bounds = Some(bx);
+                (nl, n - nl)
+            }
             SahPlan::Median => (0, 0),
         };
         if nl == 0 || nr == 0 {
@@ -404,23 +623,77 @@ impl Splitter for SahSplitter<'_> {
             let mid = n / 2;
             refs[..n].select_nth_unstable_by(mid, |x, y| x.centroid(a).total_cmp(&y.centroid(a)));
             (nl, nr) = (mid, n - mid);
+            bounds = None;
         }
-        finish(refs, r, nl, nr)
+        finish(refs, r, nl, nr, bounds)
     }
+}
+
+/// Box and centroid box of the left and of the right side of a partition.
+type SideBounds = [(Aabb, Aabb); 2];
+
+/// [`partition`] that also returns the boxes and centroid boxes of both sides, gathered
+/// in the same pass (each reference is looked at once).
+/// `CENT = false` skips the centroid boxes (left empty): ranges of at most [`SMALL`]
+/// references never bin, so their halves do not need them.
+fn partition_bounds<const CENT: bool>(
+    refs: &mut [Ref],
+    left: impl Fn(&Ref) -> bool,
+) -> (usize, SideBounds) {
+    let mut acc = [[B4::EMPTY; 2]; 2];
+    let mut add = |side: usize, r: &Ref| {
+        let b = r.b4();
+        acc[side][0].grow(&b);
+        if CENT {
+            let c: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
+            acc[side][1].grow(&B4::point(c));
+        }
+    };
+    let mut i = 0;
+    let mut j = refs.len();
+    loop {
+        while i < j && left(&refs[i]) {
+            add(0, &refs[i]);
+            i += 1;
+        }
+        while i < j && !left(&refs[j - 1]) {
+            add(1, &refs[j - 1]);
+            j -= 1;
+        }
+        if i >= j {
+            break;
+        }
+        refs.swap(i, j - 1);
+        add(0, &refs[i]);
+        add(1, &refs[j - 1]);
+        i += 1;
+        j -= 1;
+    }
+    (i, acc.map(|[b, c]| (b.aabb(), c.aabb())))
 }
 
 /// Makes the two halves once the left references are at `..nl` and the right ones at
 /// `nl..nl + nr`: shares the free room in proportion to the counts (moving the right
 /// references up) and computes the halves' boxes.
-fn finish(refs: &mut [Ref], r: &Range<Centroids>, nl: usize, nr: usize) -> [Range<Centroids>; 2] {
+fn finish(
+    refs: &mut [Ref],
+    r: &Range<Centroids>,
+    nl: usize,
+    nr: usize,
+    bounds: Option<SideBounds>,
+) -> [Range<Centroids>; 2] {
     let used = nl + nr;
     let slack = refs.len() - used;
     let sl = (slack as u64 * nl as u64 / used as u64) as usize;
     if sl > 0 {
         refs.copy_within(nl..used, nl + sl);
     }
-    let (lb, lc) = bounds_of(&refs[..nl]);
-    let (rb, rc) = bounds_of(&refs[nl + sl..nl + sl + nr]);
+    let [(lb, lc), (rb, rc)] = bounds.unwrap_or_else(|| {
+        [
+            bounds_of(&refs[..nl]),
+            bounds_of(&refs[nl + sl..nl + sl + nr]),
+        ]
+    });
     let mid = r.begin + (nl + sl) as u32;
     [
         Range {
@@ -454,7 +727,7 @@ mod tests {
             min: [0.0, -1e30, 5.0],
             max: [1.0, 1e30, 5.0],
         };
-        let m = BinMap::new(&b, 1.0 - 1e-6);
+        let m = BinMap::new(&b, BINS, 1.0 - 1e-6);
         assert_eq!(m.bin(0.0, 0), 0);
         assert_eq!(m.bin(1.0, 0), BINS - 1);
         assert_eq!(m.bin(-1e30, 1), 0);
@@ -468,6 +741,25 @@ mod tests {
         assert_eq!(m.bin(-5.0, 0), 0);
         assert_eq!(m.bin(f32::INFINITY, 0), BINS - 1);
         assert_eq!(m.bin(f32::NAN, 0), 0);
+    }
+
+    #[test]
+    fn last_below_matches_the_bins() {
+        let b = Aabb {
+            min: [-3.0, 0.001, -1e20],
+            max: [7.0, 0.002, 1e25],
+        };
+        let m = BinMap::new(&b, BINS, 1.0 - 1e-6);
+        assert_eq!(unordered(ordered(-2.5)), -2.5);
+        assert_eq!(unordered(ordered(0.0)), 0.0);
+        for a in 0..3 {
+            for bin in 1..BINS {
+                let t = m.last_below(a, bin, &b);
+                assert!(m.bin(t, a) < bin);
+                let next = unordered(ordered(t) + 1);
+                assert!(m.bin(next, a) >= bin, "axis {a} bin {bin}");
+            }
+        }
     }
 
     #[test]
@@ -494,18 +786,15 @@ mod tests {
             refs.push(r([x + 10.0, 0.0, 0.0], [x + 10.01, 0.01, 0.01]));
         }
         let (bounds, cent) = bounds_of(&refs);
-        let map = BinMap::new(&cent, 1.0 - 1e-6);
-        let bins = object_bins(&refs, &map);
-        let cost = CostModel {
-            width: 1,
-            max_leaf: 8,
-            k_t: 1.0,
-            k_i: 1.0,
-        };
+        let map = BinMap::new(&cent, BINS, 1.0 - 1e-6);
+        let mut bins = ObjectBins::new();
+        bins.add(&refs, &map);
+        let cost = CostModel::new(1, 8, 1.0, 1.0);
         let s = sweep(
             &bins.boxes[0],
-            &bins.enter[0],
-            &bins.enter[0],
+            &bins.count[0],
+            &bins.count[0],
+            &bounds,
             inv_half_area(&bounds),
             &cost,
         )

@@ -28,39 +28,71 @@ const PAR_TASK: u32 = 1 << 11;
 
 /// A reference to (part of) one triangle: the box the builder sorts and bins. SBVH
 /// references may be clipped to less than the triangle's box; the others are the
-/// triangle's box. 32 bytes so that a reference never straddles a cache line.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// triangle's box. 32 bytes, laid out as a [`B4`] so that the hot loops work on whole
+/// 4-lane vectors: lane 3 of `lo` carries the triangle id and lane 3 of `hi` a scratch
+/// word, both as raw bits (box arithmetic on lane 3 produces junk that nobody reads).
+#[derive(Clone, Copy, Debug, PartialEq)]
 #[repr(C, align(32))]
 pub(crate) struct Ref {
-    /// Lower corner of the box.
-    pub lo: [f32; 3],
-    /// Triangle id.
-    pub id: u32,
-    /// Upper corner of the box.
-    pub hi: [f32; 3],
-    /// Scratch word for the splitters (which side a reference goes to).
-    pub aux: u32,
+    /// Lower corner in lanes 0..3; the id's bits in lane 3.
+    pub lo: [f32; 4],
+    /// Upper corner in lanes 0..3; the scratch word's bits in lane 3.
+    pub hi: [f32; 4],
 }
 
 const _: () = assert!(std::mem::size_of::<Ref>() == 32);
 
+impl Default for Ref {
+    fn default() -> Self {
+        Ref {
+            lo: [0.0; 4],
+            hi: [0.0; 4],
+        }
+    }
+}
+
 impl Ref {
-    /// A reference with box `b`.
+    /// A reference to triangle `id` with box `b`.
     pub fn new(id: u32, b: &Aabb) -> Ref {
         Ref {
-            lo: b.min,
-            id,
-            hi: b.max,
-            aux: 0,
+            lo: [b.min[0], b.min[1], b.min[2], f32::from_bits(id)],
+            hi: [b.max[0], b.max[1], b.max[2], 0.0],
         }
+    }
+
+    /// The triangle id.
+    #[inline(always)]
+    pub fn id(&self) -> u32 {
+        self.lo[3].to_bits()
+    }
+
+    /// The scratch word (which side a reference goes to).
+    #[inline(always)]
+    pub fn aux(&self) -> u32 {
+        self.hi[3].to_bits()
+    }
+
+    /// Sets the scratch word.
+    #[inline(always)]
+    pub fn set_aux(&mut self, v: u32) {
+        self.hi[3] = f32::from_bits(v);
     }
 
     /// The box.
     #[inline(always)]
     pub fn aabb(&self) -> Aabb {
         Aabb {
-            min: self.lo,
-            max: self.hi,
+            min: [self.lo[0], self.lo[1], self.lo[2]],
+            max: [self.hi[0], self.hi[1], self.hi[2]],
+        }
+    }
+
+    /// The box as a [`B4`] (lane 3 junk).
+    #[inline(always)]
+    pub fn b4(&self) -> B4 {
+        B4 {
+            lo: self.lo,
+            hi: self.hi,
         }
     }
 
@@ -68,6 +100,64 @@ impl Ref {
     #[inline(always)]
     pub fn centroid(&self, axis: usize) -> f32 {
         self.lo[axis] * 0.5 + self.hi[axis] * 0.5
+    }
+}
+
+/// A box in 4-lane form for the hot loops (bins, chopping): lanes 0..3 are x, y, z and
+/// lane 3 is junk. Empty is `+inf..-inf` in lanes 0..3.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
+pub(crate) struct B4 {
+    /// Lower corner.
+    pub lo: [f32; 4],
+    /// Upper corner.
+    pub hi: [f32; 4],
+}
+
+impl B4 {
+    /// The empty box.
+    pub const EMPTY: B4 = B4 {
+        lo: [f32::INFINITY; 4],
+        hi: [f32::NEG_INFINITY; 4],
+    };
+
+    /// A box of one point.
+    #[inline(always)]
+    pub fn point(p: [f32; 4]) -> B4 {
+        B4 { lo: p, hi: p }
+    }
+
+    /// Grows the box by `o`.
+    #[inline(always)]
+    pub fn grow(&mut self, o: &B4) {
+        for k in 0..4 {
+            self.lo[k] = fmin(self.lo[k], o.lo[k]);
+            self.hi[k] = fmax(self.hi[k], o.hi[k]);
+        }
+    }
+
+    /// The intersection, or `None` when it is empty.
+    #[inline(always)]
+    pub fn intersect(&self, o: &B4) -> Option<B4> {
+        let mut c = B4::EMPTY;
+        for k in 0..4 {
+            c.lo[k] = fmax(self.lo[k], o.lo[k]);
+            c.hi[k] = fmin(self.hi[k], o.hi[k]);
+        }
+        if c.lo[0] <= c.hi[0] && c.lo[1] <= c.hi[1] && c.lo[2] <= c.hi[2] {
+            Some(c)
+        } else {
+            None
+        }
+    }
+
+    /// As an [`Aabb`].
+    #[inline(always)]
+    pub fn aabb(&self) -> Aabb {
+        Aabb {
+            min: [self.lo[0], self.lo[1], self.lo[2]],
+            max: [self.hi[0], self.hi[1], self.hi[2]],
+        }
     }
 }
 
@@ -153,8 +243,10 @@ pub(crate) fn inv_half_area(b: &Aabb) -> f64 {
 /// the area-weighted leaf costs of the halves.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct CostModel {
-    /// Triangles per multi-triangle (N for the MBVHs, 1 for [`super::Bvh2`]).
-    pub width: u32,
+    /// log2 of the triangles per multi-triangle (N for the MBVHs, 1 for
+    /// [`super::Bvh2`]); a shift because the sweeps evaluate `⌈T/width⌉` thousands of
+    /// times per node and an integer division there cost a third of the build.
+    shift: u32,
     /// A candidate with more references is always split.
     pub max_leaf: u32,
     /// Cost of a traversal step (K_T).
@@ -164,10 +256,21 @@ pub(crate) struct CostModel {
 }
 
 impl CostModel {
+    /// Costs for multi-triangles of `width` (a power of two) triangles.
+    pub fn new(width: u32, max_leaf: u32, k_t: f64, k_i: f64) -> Self {
+        assert!(width.is_power_of_two());
+        CostModel {
+            shift: width.trailing_zeros(),
+            max_leaf,
+            k_t,
+            k_i,
+        }
+    }
+
     /// Multi-triangles needed for `n` triangles.
     #[inline(always)]
     pub fn blocks(&self, n: u32) -> f64 {
-        n.div_ceil(self.width) as f64
+        ((n + (1 << self.shift) - 1) >> self.shift) as f64
     }
 
     /// Cost of a leaf of `n` triangles.
@@ -242,13 +345,18 @@ pub(crate) trait Splitter: Sync {
     ) -> [Range<Self::Info>; 2];
 }
 
-/// A range together with its best split.
+/// A range together with its best split, found lazily: only when the construction
+/// needs it (see [`Builder::build_multi`]).
 #[derive(Clone, Copy)]
 struct Cand<I, P> {
     r: Range<I>,
     plan: P,
     /// Split cost S (see [`Splitter::plan`]); +inf when the range cannot be split.
     s: f64,
+    /// Half the surface area of the range's box.
+    area: f64,
+    /// Whether `plan` and `s` have been computed.
+    ready: bool,
 }
 
 impl<I: Default, P: Default> Default for Cand<I, P> {
@@ -257,6 +365,8 @@ impl<I: Default, P: Default> Default for Cand<I, P> {
             r: Range::default(),
             plan: P::default(),
             s: f64::INFINITY,
+            area: 0.0,
+            ready: false,
         }
     }
 }
@@ -339,19 +449,41 @@ struct Builder<'a, S: Splitter, const N: usize> {
 type CandOf<S> = Cand<<S as Splitter>::Info, <S as Splitter>::Plan>;
 
 impl<S: Splitter, const N: usize> Builder<'_, S, N> {
-    /// Finds the best split of `r` (`refs` = its references).
-    fn eval(&self, refs: &[Ref], r: Range<S::Info>, depth: u32) -> CandOf<S> {
-        if r.n() < 2 {
-            return Cand {
-                r,
-                plan: S::Plan::default(),
-                s: f64::INFINITY,
-            };
+    /// A candidate for range `r`, its split not yet computed.
+    fn cand(&self, r: Range<S::Info>) -> CandOf<S> {
+        Cand {
+            area: half_area(&r.bounds),
+            r,
+            plan: S::Plan::default(),
+            s: f64::INFINITY,
+            ready: false,
         }
-        let (plan, s) = self
-            .splitter
-            .plan(refs, &r, &self.cost, depth >= DEPTH_LIMIT);
-        Cand { r, plan, s }
+    }
+
+    /// Finds the best split of candidate `c` (`refs` = its references).
+    fn eval(&self, refs: &[Ref], c: &mut CandOf<S>, depth: u32) {
+        if !c.ready && c.r.n() >= 2 {
+            let (plan, s) = self
+                .splitter
+                .plan(refs, &c.r, &self.cost, depth >= DEPTH_LIMIT);
+            c.plan = plan;
+            c.s = s;
+        }
+        c.ready = true;
+    }
+
+    /// Finds the split of candidate `c`, whose references lie somewhere in `refs` (whose
+    /// first slot is `base`).
+    fn eval_in(&self, refs: &[Ref], base: u32, c: &mut CandOf<S>, depth: u32) {
+        let slice = &refs[(c.r.begin - base) as usize..(c.r.end - base) as usize];
+        self.eval(slice, c, depth);
+    }
+
+    /// Whether the vertical decision for `n` references depends on the split at all: a
+    /// leaf that costs no more than one traversal step is never worth splitting
+    /// vertically (eq. 2: `K_T + K_I·S > K_I·⌈T/N⌉` when `⌈T/N⌉·K_I <= K_T`).
+    fn may_split_v(&self, n: u32) -> bool {
+        n > self.cost.max_leaf || (n >= 2 && self.cost.leaf(n) > self.cost.k_t)
     }
 
     /// Eq. 1: splitting inside the current multi-node pays (or is forced).
@@ -363,11 +495,13 @@ impl<S: Splitter, const N: usize> Builder<'_, S, N> {
     /// Eq. 2: making a new multi-node pays (or is forced).
     fn pays_v(&self, c: &CandOf<S>) -> bool {
         let n = c.r.n();
-        n >= 2
+        self.may_split_v(n)
             && (n > self.cost.max_leaf || self.cost.k_t + self.cost.k_i * c.s < self.cost.leaf(n))
     }
 
-    /// Splits candidate `c` (which lies in `refs`, whose first slot is `base`).
+    /// Splits candidate `c` (which lies in `refs`, whose first slot is `base`). Halves
+    /// that must be split anyway (more than the leaf limit) get their split found at once,
+    /// in parallel when large; the others when needed.
     fn split(
         &self,
         refs: &mut [Ref],
@@ -379,14 +513,22 @@ impl<S: Splitter, const N: usize> Builder<'_, S, N> {
         let hi = (c.r.cap - base) as usize;
         let [l, r] = self.splitter.apply(&mut refs[lo..hi], &c.r, &c.plan);
         debug_assert!(l.n() > 0 && r.n() > 0);
+        let (mut l, mut r) = (self.cand(l), self.cand(r));
         let refs: &[Ref] = refs;
-        let sl = &refs[(l.begin - base) as usize..(l.end - base) as usize];
-        let sr = &refs[(r.begin - base) as usize..(r.end - base) as usize];
-        if self.parallel && c.r.n() >= PAR_EVAL {
-            rayon::join(|| self.eval(sl, l, depth), || self.eval(sr, r, depth))
+        let max = self.cost.max_leaf;
+        if self.parallel && c.r.n() >= PAR_EVAL && l.r.n() > max && r.r.n() > max {
+            rayon::join(
+                || self.eval_in(refs, base, &mut l, depth),
+                || self.eval_in(refs, base, &mut r, depth),
+            );
         } else {
-            (self.eval(sl, l, depth), self.eval(sr, r, depth))
+            for x in [&mut l, &mut r] {
+                if x.r.n() > max {
+                    self.eval_in(refs, base, x, depth);
+                }
+            }
         }
+        (l, r)
     }
 
     /// Builds the multi-node grown from `first` (whose references are `refs`, starting at
@@ -399,20 +541,27 @@ impl<S: Splitter, const N: usize> Builder<'_, S, N> {
         first: CandOf<S>,
         depth: u32,
     ) -> u32 {
-        // Horizontal splitting.
+        // Horizontal splitting: the candidate with the largest area whose split pays.
+        // Splits are found in that order, as they are needed.
         let mut kids = [CandOf::<S>::default(); N];
         kids[0] = first;
         let mut k = 1;
         while k < N {
             let mut pick = None;
-            let mut best = -1.0;
-            for (i, c) in kids[..k].iter().enumerate() {
-                if self.pays_h(c) {
-                    let a = half_area(&c.r.bounds);
-                    if a > best {
-                        best = a;
-                        pick = Some(i);
+            loop {
+                let mut next = None;
+                let mut best = -1.0;
+                for (i, c) in kids[..k].iter().enumerate() {
+                    if c.r.n() >= 2 && (!c.ready || self.pays_h(c)) && c.area > best {
+                        best = c.area;
+                        next = Some(i);
                     }
+                }
+                let Some(i) = next else { break };
+                self.eval_in(refs, base, &mut kids[i], depth);
+                if self.pays_h(&kids[i]) {
+                    pick = Some(i);
+                    break;
                 }
             }
             let Some(i) = pick else { break };
@@ -421,6 +570,11 @@ impl<S: Splitter, const N: usize> Builder<'_, S, N> {
             kids[i] = l;
             kids[i + 1] = r;
             k += 1;
+        }
+        for c in kids[..k].iter_mut() {
+            if !c.ready && self.may_split_v(c.r.n()) {
+                self.eval_in(refs, base, c, depth);
+            }
         }
 
         // Vertical splitting. The node goes in first so that arenas are in pre-order.
@@ -529,29 +683,89 @@ pub(crate) struct Built<const N: usize> {
 /// References of the traceable triangles, the ids of the others, and the bounds of the
 /// references' boxes and centroids.
 fn make_refs(tris: &[Triangle]) -> (Vec<Ref>, Vec<u32>, Aabb, Aabb) {
-    let (refs, excluded): (Vec<Ref>, Vec<u32>) =
-        tris.par_iter().enumerate().partition_map(|(i, t)| {
-            if is_traceable(t) {
-                rayon::iter::Either::Left(Ref::new(i as u32, &t.bounds()))
-            } else {
-                rayon::iter::Either::Right(i as u32)
+    // Two passes over chunks: which triangles go in (and how many per chunk), then the
+    // references written straight into their final slots, with the bounds on the way.
+    const CHUNK: usize = 1 << 12;
+    let flags: Vec<(Vec<bool>, usize)> = tris
+        .par_chunks(CHUNK)
+        .map(|c| {
+            let f: Vec<bool> = c.iter().map(is_traceable).collect();
+            let n = f.iter().filter(|&&x| x).count();
+            (f, n)
+        })
+        .collect();
+    let total: usize = flags.iter().map(|(_, n)| n).sum();
+    let mut refs = vec![Ref::default(); total];
+    let mut jobs = Vec::with_capacity(flags.len());
+    let mut rest: &mut [Ref] = &mut refs;
+    for (ci, (f, n)) in flags.iter().enumerate() {
+        let (mine, tail) = std::mem::take(&mut rest).split_at_mut(*n);
+        rest = tail;
+        jobs.push((ci, f, mine));
+    }
+    let (bounds, cent) = jobs
+        .into_par_iter()
+        .map(|(ci, f, out)| {
+            let mut b = B4::EMPTY;
+            let mut c = B4::EMPTY;
+            let base = ci * CHUNK;
+            let mut o = out.iter_mut();
+            for (i, t) in tris[base..base + f.len()].iter().enumerate() {
+                if !f[i] {
+                    continue;
+                }
+                let mut tb = B4::point([t.v[0][0], t.v[0][1], t.v[0][2], 0.0]);
+                for p in &t.v[1..] {
+                    tb.grow(&B4::point([p[0], p[1], p[2], 0.0]));
+                }
+                let r = o.next().expect("counted");
+                *r = Ref {
+                    lo: [
+                        tb.lo[0],
+                        tb.lo[1],
+                        tb.lo[2],
+                        f32::from_bits((base + i) as u32),
+                    ],
+                    hi: [tb.hi[0], tb.hi[1], tb.hi[2], 0.0],
+                };
+                b.grow(&tb);
+                let m: [f32; 4] = std::array::from_fn(|k| tb.lo[k] * 0.5 + tb.hi[k] * 0.5);
+                c.grow(&B4::point(m));
             }
-        });
-    let (bounds, cent) = bounds_of(&refs);
-    (refs, excluded, bounds, cent)
+            (b, c)
+        })
+        .reduce(
+            || (B4::EMPTY, B4::EMPTY),
+            |mut x, y| {
+                x.0.grow(&y.0);
+                x.1.grow(&y.1);
+                x
+            },
+        );
+    let excluded: Vec<u32> = flags
+        .iter()
+        .enumerate()
+        .flat_map(|(ci, (f, _))| {
+            f.iter()
+                .enumerate()
+                .filter(|(_, &x)| !x)
+                .map(move |(i, _)| (ci * CHUNK + i) as u32)
+        })
+        .collect();
+    (refs, excluded, bounds.aabb(), cent.aabb())
 }
 
 /// Box and centroid box of `refs` (in parallel for long slices).
 pub(crate) fn bounds_of(refs: &[Ref]) -> (Aabb, Aabb) {
     fn scan(refs: &[Ref]) -> (Aabb, Aabb) {
-        let mut b = Aabb::EMPTY;
-        let mut c = Aabb::EMPTY;
+        let mut b = B4::EMPTY;
+        let mut c = B4::EMPTY;
         for r in refs {
-            grow(&mut b, &r.lo, &r.hi);
-            let p = [r.centroid(0), r.centroid(1), r.centroid(2)];
-            grow(&mut c, &p, &p);
+            b.grow(&r.b4());
+            let p: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
+            c.grow(&B4::point(p));
         }
-        (b, c)
+        (b.aabb(), c.aabb())
     }
     if refs.len() < 1 << 15 {
         return scan(refs);
@@ -633,7 +847,8 @@ fn build_root<S: Splitter, const N: usize>(
         arena.push(BNode::empty());
         return arena;
     }
-    let c = b.eval(&refs[..root.n() as usize], root, 0);
+    let mut c = b.cand(root);
+    b.eval(&refs[..root.n() as usize], &mut c, 0);
     b.build_multi(&mut arena, refs, 0, c, 0);
     arena
 }

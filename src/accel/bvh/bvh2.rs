@@ -146,12 +146,7 @@ pub struct Bvh2 {
 impl Bvh2 {
     /// The cost model: K_T = K_I = 1 per triangle, at most [`BVH2_MAX_LEAF`] per leaf.
     pub(super) fn cost() -> CostModel {
-        CostModel {
-            width: 1,
-            max_leaf: BVH2_MAX_LEAF,
-            k_t: 1.0,
-            k_i: 1.0,
-        }
+        CostModel::new(1, BVH2_MAX_LEAF, 1.0, 1.0)
     }
 
     /// Builds the tree over `triangles` (ids are their indices) on the current rayon
@@ -276,7 +271,7 @@ fn emit(
             .iter_mut()
             .zip(&refs[begin as usize..(begin + n) as usize])
         {
-            *o = Bvh2Tri::new(r.id, &tris[r.id as usize]);
+            *o = Bvh2Tri::new(r.id(), &tris[r.id() as usize]);
         }
     } else {
         let (a, j) = inner(arena, kid).expect("an inner child");

@@ -14,7 +14,7 @@
 
 use rayon::prelude::*;
 
-use super::build::{half_area, inv_half_area, union, CostModel, Range, Ref, Splitter};
+use super::build::{fmax, fmin, half_area, inv_half_area, union, CostModel, Range, Ref, Splitter};
 use crate::geometry::Aabb;
 
 /// The `info` of a single-reference range (which has no split).
@@ -46,8 +46,13 @@ fn spread(v: u32) -> u32 {
 
 /// Morton code of a point quantised to 1024 cells per axis of `cent`.
 fn code(r: &Ref, lo: &[f32; 3], scale: &[f32; 3]) -> u32 {
-    let q = |a: usize| (((r.centroid(a) - lo[a]) * scale[a]) as i32).clamp(0, 1023) as u32;
-    (spread(q(0)) << 2) | (spread(q(1)) << 1) | spread(q(2))
+    // Floor of the cell coordinate, clamped to 0..=1023, through the f32 mantissa (see
+    // `binning::to_bin`): no saturating float-to-int conversion.
+    let q: [u32; 3] = std::array::from_fn(|a| {
+        let f = fmin(fmax((r.centroid(a) - lo[a]) * scale[a] - 0.5, 0.0), 1023.0);
+        (f + 8_388_608.0).to_bits() & 1023
+    });
+    (spread(q[0]) << 2) | (spread(q[1]) << 1) | spread(q[2])
 }
 
 /// LSD radix sort of `keys` by their upper 32 bits (the Morton code; the lower 32 bits

@@ -239,12 +239,7 @@ impl<const N: usize> Mbvh<N> {
     /// The cost model of the N-wide build: K_T = K_I = 1, costs in multi-triangles, at
     /// most 2N triangles per leaf.
     pub(super) fn cost() -> CostModel {
-        CostModel {
-            width: N as u32,
-            max_leaf: 2 * N as u32,
-            k_t: 1.0,
-            k_i: 1.0,
-        }
+        CostModel::new(N as u32, 2 * N as u32, 1.0, 1.0)
     }
 
     /// Builds the tree over `triangles` (ids are their indices) on the current rayon
@@ -377,7 +372,7 @@ fn emit<const N: usize>(
 fn fill_leaf<const N: usize>(mts: &mut [MultiTri<N>], refs: &[Ref], tris: &[Triangle]) {
     for (mt, chunk) in mts.iter_mut().zip(refs.chunks(N)) {
         for (lane, r) in chunk.iter().enumerate() {
-            mt.set(lane, r.id, &tris[r.id as usize]);
+            mt.set(lane, r.id(), &tris[r.id() as usize]);
         }
     }
 }
