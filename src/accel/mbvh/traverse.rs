@@ -20,27 +20,9 @@ use super::layout::{leaf_lanes, Pack, TravTree};
 use super::ray::SlabConsts;
 use super::slab::{Lanes, SlabTest};
 use super::stack::{self, sort_top, sort_top3, sort_top4, Stack};
-use crate::accel::triangle::{PreparedRay, PreparedRay8, Tri8, TriTest};
+use crate::accel::triangle::{PreparedRay, PreparedRay8, TriTest};
 use crate::geometry::{Hit, Ray};
 use crate::simd::{self, FloatV, MaskV, Simd};
-
-/// The hit record of lane `lane` of `pack` from the scalar test (bit-identical to the
-/// 8-wide test that found it).
-#[inline]
-pub(crate) fn fields<T: TriTest>(r: &PreparedRay, pack: &Tri8<T>, lane: usize) -> Hit {
-    match T::intersect1(r, pack, lane, r.tmax) {
-        Some(h) => Hit {
-            t: h.t,
-            prim: pack.ids[lane],
-            u: h.u,
-            v: h.v,
-        },
-        None => {
-            debug_assert!(false, "scalar and 8-wide tests disagree");
-            Hit::MISS
-        }
-    }
-}
 
 /// Index of the lowest set bit of a non-zero mask, and the mask without it (Áfra's
 /// BSF + BTC).
@@ -96,7 +78,7 @@ where
     let packs = &tree.packs[..];
     let mut best_t = br.tmax;
     let mut best_id = u32::MAX;
-    let mut best_at: Option<(usize, usize)> = None;
+    let (mut best_u, mut best_v) = (0.0f32, 0.0f32);
     let mut tmax8 = s.splat_f8(best_t);
     let mut sp = 0usize;
     let mut cur: i32 = 0;
@@ -162,7 +144,7 @@ where
             let (mut p, mut lanes, mut rest) = leaf_head(cur);
             loop {
                 let Pack(pack) = &packs[p];
-                let (m, t) = T::intersect8(s, &r8, pack, tmax8);
+                let (m, t, u, v) = T::intersect8_uv(s, &r8, pack, tmax8);
                 let mut bits = m.bitmask() & lanes;
                 if bits == 0 {
                     if rest == 0 {
@@ -172,6 +154,7 @@ where
                     continue;
                 }
                 let ts = t.to_array();
+                let mut win = None;
                 while bits != 0 {
                     let lane = next_bit(&mut bits) & 7;
                     let (t, id) = (ts[lane], pack.ids[lane]);
@@ -180,8 +163,11 @@ where
                     if t < best_t || (t == best_t && id < best_id) {
                         best_t = t;
                         best_id = id;
-                        best_at = Some((p, lane));
+                        win = Some(lane);
                     }
+                }
+                if let Some(lane) = win {
+                    (best_u, best_v) = (u.to_array()[lane], v.to_array()[lane]);
                 }
                 tmax8 = s.splat_f8(best_t);
                 if rest == 0 {
@@ -204,20 +190,25 @@ where
             }
         }
     }
-    match best_at {
-        Some((p, lane)) => fields(&r, &packs[p].0, lane),
-        None => Hit::MISS,
+    if best_id == u32::MAX {
+        return Hit::MISS;
+    }
+    Hit {
+        t: best_t,
+        prim: best_id,
+        u: best_u,
+        v: best_v,
     }
 }
 
-/// Some hit of `ray` in its interval: `(prepared ray, pack, lane)` of the first one found.
+/// Some hit of `ray` in its interval: the first one found.
 #[inline(always)]
 pub fn any<S: Simd, T: TriTest, const N: usize>(
     s: S,
     tree: &TravTree<N, T>,
     ray: &Ray,
     stack: &mut Stack,
-) -> Option<(PreparedRay, usize, usize)>
+) -> Option<Hit>
 where
     Lanes<N>: SlabTest<N>,
 {
@@ -249,10 +240,17 @@ where
         } else {
             let (mut p, mut lanes, mut rest) = leaf_head(cur);
             loop {
-                let (m, _) = T::intersect8(s, &r8, &packs[p].0, tmax8);
+                let Pack(pack) = &packs[p];
+                let (m, t, u, v) = T::intersect8_uv(s, &r8, pack, tmax8);
                 let bits = m.bitmask() & lanes;
                 if bits != 0 {
-                    return Some((r, p, bits.trailing_zeros() as usize));
+                    let lane = bits.trailing_zeros() as usize & 7;
+                    return Some(Hit {
+                        t: t.to_array()[lane],
+                        prim: pack.ids[lane],
+                        u: u.to_array()[lane],
+                        v: v.to_array()[lane],
+                    });
                 }
                 if rest == 0 {
                     break;
