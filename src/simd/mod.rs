@@ -405,31 +405,6 @@ pub fn dispatch<K: Kernel>(backend: Backend, kernel: K) -> K::Output {
     }
 }
 
-/// Asks the CPU to bring every cache line of `*r` into all cache levels, so that a load
-/// issued later (e.g. when a traversal pops a pushed node) does not wait for memory.
-///
-/// Only a hint: it never faults, changes no value, and is a no-op on targets without a
-/// prefetch instruction (the scalar twin is that no-op). On x86-64 it is SSE's
-/// `prefetcht0`, part of the baseline, so it needs no backend token.
-#[inline(always)]
-pub fn prefetch<T>(r: &T) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let p = (r as *const T).cast::<i8>();
-        let mut off = 0;
-        while off < std::mem::size_of::<T>() {
-            // SAFETY: `prefetcht0` is in the x86-64 baseline; it only hints the cache and
-            // never faults or reads observably, and `p + off` stays within `*r`.
-            unsafe {
-                std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p.add(off))
-            };
-            off += 64;
-        }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = r;
-}
-
 #[cold]
 fn unsupported(backend: Backend) -> ! {
     panic!("SIMD backend {backend} is not supported on this CPU")

@@ -44,13 +44,35 @@ pub struct TravNode<const N: usize> {
 const _: () = assert!(std::mem::size_of::<TravNode<8>>() == 256);
 const _: () = assert!(std::mem::size_of::<TravNode<4>>() == 128);
 
-/// Splits a leaf id into (first pack, pack count).
+/// A [`Tri8`] aligned to a cache line: 320 bytes are exactly five lines, where `Tri8`'s
+/// own 32-byte alignment would let a pack straddle six.
+#[repr(C, align(64))]
+#[derive(Clone, Debug)]
+pub struct Pack<T>(pub Tri8<T>);
+
+const _: () = assert!(std::mem::size_of::<Pack<crate::accel::triangle::Watertight>>() == 320);
+
+/// Bits of a leaf id holding its first lane.
+const START_BITS: u32 = 27;
+
+/// Encodes a leaf: `n` (1..=16) triangles from global lane `start` (pack `start / 8`, lane
+/// `start % 8`).
+fn leaf_id(start: usize, n: usize) -> i32 {
+    assert!(
+        start < 1 << START_BITS,
+        "too many triangle lanes for the leaf encoding"
+    );
+    debug_assert!((1..=16).contains(&n));
+    (1u32 << 31 | ((n as u32 - 1) << START_BITS) | start as u32) as i32
+}
+
+/// Splits a leaf id into (first global lane, triangle count).
 #[inline(always)]
-pub fn leaf_range(id: i32) -> (usize, usize) {
+pub fn leaf_lanes(id: i32) -> (usize, usize) {
     let u = id as u32;
     (
-        (u & ((1 << Child::FIRST_BITS) - 1)) as usize,
-        ((u >> Child::FIRST_BITS) & 3) as usize + 1,
+        (u & ((1 << START_BITS) - 1)) as usize,
+        ((u >> START_BITS) & 15) as usize + 1,
     )
 }
 
@@ -61,7 +83,7 @@ pub struct TravTree<const N: usize, T> {
     /// Multi-nodes, depth-first, root first.
     pub nodes: Vec<TravNode<N>>,
     /// The leaves' triangles, in leaf order.
-    pub packs: Vec<Tri8<T>>,
+    pub packs: Vec<Pack<T>>,
     /// Largest |coordinate| of the tree's bounds (0 for an empty tree): the scale of the
     /// rounding errors of the triangle tests, see `ray::BoxRay`.
     pub scale: f32,
@@ -75,11 +97,15 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         let src = tree.nodes();
         let mts = tree.multi_tris();
         let mut nodes = Vec::with_capacity(src.len());
-        let mut packs: Vec<Tri8<T>> = Vec::with_capacity(mts.len() * N / 8 + 2);
-        // Pack 0 is all padding: empty lanes point at it (see `TravNode::child`).
-        packs.push(Tri8::pack(&[]));
-        let empty = Child::Leaf { first: 0, count: 1 }.encode();
-        let mut lane_buf: Vec<(u32, Triangle)> = Vec::with_capacity(2 * N);
+        // Leaves are laid out densely in "lane space", eight lanes a pack: a leaf of at
+        // most 8 triangles never straddles two packs, a larger one starts a pack. Leaves
+        // come in node order, so small sibling leaves share packs. Lanes 0..8 (pack 0)
+        // are padding, which unused node lanes point at (see `TravNode::child`).
+        let mut lanes: Vec<(u32, Triangle)> = Vec::with_capacity(mts.len() * N + 8);
+        let mut bounds: Vec<usize> = vec![0]; // lane counts at which a pack ends early
+        let mut pos = 8usize;
+        let empty = leaf_id(0, 1);
+        let mut leaf: Vec<(u32, Triangle)> = Vec::with_capacity(2 * N);
         for n in src {
             let mut planes = [[0.0f32; N]; 6];
             planes[..3].copy_from_slice(&n.min);
@@ -89,21 +115,25 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 if *c == Child::EMPTY {
                     *c = empty;
                 } else if let Child::Leaf { first, count } = Child::decode(*c) {
-                    lane_buf.clear();
+                    leaf.clear();
                     for mt in &mts[first as usize..(first + count) as usize] {
                         for lane in 0..mt.lanes() {
-                            lane_buf.push((mt.ids[lane], mt.get(lane)));
+                            leaf.push((mt.ids[lane], mt.get(lane)));
                         }
                     }
-                    let start = packs.len() as u32;
-                    packs.extend(lane_buf.chunks(8).map(Tri8::pack));
-                    let k = packs.len() as u32 - start;
-                    assert!((1..=Child::MAX_COUNT).contains(&k), "leaf of {k} packs");
-                    *c = Child::Leaf {
-                        first: start,
-                        count: k,
+                    let k = leaf.len();
+                    assert!((1..=16).contains(&k), "leaf of {k} triangles");
+                    if pos % 8 + k > 8 && pos % 8 != 0 {
+                        bounds.push(lanes.len());
+                        pos = pos.next_multiple_of(8);
                     }
-                    .encode();
+                    *c = leaf_id(pos, k);
+                    pos += k;
+                    lanes.extend_from_slice(&leaf);
+                    if k > 8 {
+                        // The tail starts a pack of its own.
+                        bounds.push(lanes.len() - (k - 8));
+                    }
                 }
             }
             nodes.push(TravNode {
@@ -112,6 +142,8 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 pad: [0; N],
             });
         }
+        let packs = pack_lanes(&lanes, &bounds);
+        debug_assert_eq!(packs.len(), pos.div_ceil(8));
         let b = tree.bounds();
         let scale = if b.is_empty() {
             0.0
@@ -132,8 +164,25 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         self.nodes.capacity() * std::mem::size_of::<TravNode<N>>()
-            + self.packs.capacity() * std::mem::size_of::<Tri8<T>>()
+            + self.packs.capacity() * std::mem::size_of::<Pack<T>>()
     }
+}
+
+/// Makes the packs: pack 0 is padding; then each pack takes the next lanes up to eight or
+/// up to the next early end in `bounds` (lane counts, ascending), whichever comes first.
+fn pack_lanes<T: TriTest>(lanes: &[(u32, Triangle)], bounds: &[usize]) -> Vec<Pack<T>> {
+    let mut packs = vec![Pack(Tri8::pack(&[]))];
+    let mut at = 0;
+    let mut ends = bounds.iter().copied().filter(|&b| b > 0).peekable();
+    while at < lanes.len() {
+        while ends.next_if(|&b| b <= at).is_some() {}
+        let end = (at + 8)
+            .min(lanes.len())
+            .min(ends.peek().copied().unwrap_or(usize::MAX));
+        packs.push(Pack(Tri8::pack(&lanes[at..end])));
+        at = end;
+    }
+    packs
 }
 
 /// Deepest level of the builder's tree (root = 1).

@@ -129,10 +129,7 @@ where
             }
             Out::Hits(Query::Any, hits) => {
                 for (ray, hit) in self.rays.iter().zip(hits) {
-                    *hit = match traverse::any(s, tree, ray, &mut stack) {
-                        Some((r, p, lane)) => traverse::fields(&r, &tree.packs[p], lane),
-                        None => Hit::MISS,
-                    };
+                    *hit = traverse::any(s, tree, ray, &mut stack).unwrap_or(Hit::MISS);
                 }
             }
             Out::Occluded(out) => {

@@ -31,6 +31,7 @@
 //! has moved the ray by at most `2^-21·(scale + |org|) = δ/4`: well inside the growth.
 
 use crate::accel::triangle::PreparedRay;
+use crate::simd::{FloatV, IntV, MaskV, Select, Simd};
 
 /// Relative size of the box growth (see the module docs).
 pub const SLACK: f32 = 1.0 / (1u32 << 19) as f32;
@@ -116,6 +117,137 @@ impl BoxRay {
             self.org_lo[axis]
         } else {
             self.org_hi[axis]
+        }
+    }
+}
+
+/// [`BoxRay`]'s constants in the form the fused slab test uses, per axis (lane 3 unused):
+/// `1/dir`, `-(near origin · inv)`, `-(far origin · inv)`, and the direction's sign bits.
+/// Bit-identical to deriving them from [`BoxRay`] (same operations in the same order).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlabConsts {
+    /// `1/dir` (tilted, see [`BoxRay::inv`]).
+    pub inv: [f32; 4],
+    /// `-(near origin · inv)`.
+    pub near_oi: [f32; 4],
+    /// `-(far origin · inv)`.
+    pub far_oi: [f32; 4],
+    /// Bit k set when `dir[k]`'s sign bit is.
+    pub neg: u32,
+    /// Interval start (`-0` made `+0`).
+    pub tmin: f32,
+    /// Interval end (`-0` made `+0`).
+    pub tmax: f32,
+}
+
+impl SlabConsts {
+    /// Computes the constants 4-wide (a third of the instructions of the scalar route,
+    /// which matters once per ray).
+    #[inline(always)]
+    pub fn new<S: Simd>(s: S, r: &PreparedRay, scale: f32) -> SlabConsts {
+        let o = s.load_f4(&[r.org[0], r.org[1], r.org[2], 0.0]);
+        let d = s.load_f4(&[r.dir[0], r.dir[1], r.dir[2], 0.0]);
+        let a = d.abs();
+        let big = o.abs().hmax();
+        let big = if big > scale { big } else { scale };
+        let delta = s.splat_f4(SLACK * (scale + big));
+        let neg = d.to_bits().lt(s.splat_i4(0));
+        let mag = a.max(s.splat_f4(TILT * a.hmax()));
+        let inv = s.splat_f4(1.0) / neg.select(-mag, mag);
+        let (lo, hi) = (o + delta, o - delta);
+        let near = neg.select(hi, lo);
+        let far = neg.select(lo, hi);
+        SlabConsts {
+            inv: inv.to_array(),
+            near_oi: (-(near * inv)).to_array(),
+            far_oi: (-(far * inv)).to_array(),
+            neg: neg.bitmask() & 7,
+            tmin: r.tmin + 0.0,
+            tmax: r.tmax + 0.0,
+        }
+    }
+
+    /// The same constants from the scalar [`BoxRay`] (the reference).
+    pub fn from_box_ray(b: &BoxRay) -> SlabConsts {
+        let oi = |o: f32, k: usize| -(o * b.inv[k]);
+        SlabConsts {
+            inv: [b.inv[0], b.inv[1], b.inv[2], 0.0],
+            near_oi: [
+                oi(b.near_org(0), 0),
+                oi(b.near_org(1), 1),
+                oi(b.near_org(2), 2),
+                0.0,
+            ],
+            far_oi: [
+                oi(b.far_org(0), 0),
+                oi(b.far_org(1), 1),
+                oi(b.far_org(2), 2),
+                0.0,
+            ],
+            neg: (0..3).map(|k| u32::from(b.neg[k]) << k).sum(),
+            tmin: b.tmin,
+            tmax: b.tmax,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Ray;
+    use crate::simd::{dispatch, Backend, Kernel};
+
+    struct Consts(Vec<(PreparedRay, f32)>);
+    impl Kernel for Consts {
+        type Output = Vec<SlabConsts>;
+        #[inline(always)]
+        fn run<S: Simd>(self, s: S) -> Vec<SlabConsts> {
+            self.0
+                .iter()
+                .map(|(r, sc)| SlabConsts::new(s, r, *sc))
+                .collect()
+        }
+    }
+
+    #[test]
+    fn simd_constants_equal_the_scalar_reference() {
+        let vals = [
+            0.0f32, -0.0, 1.0, -1.0, 3.5, -1e-30, 1e-30, 7e5, -2.5e-3, 1e20,
+        ];
+        let mut cases = Vec::new();
+        for (i, &a) in vals.iter().enumerate() {
+            for (j, &b) in vals.iter().enumerate() {
+                let c = vals[(i * 7 + j * 3) % vals.len()];
+                let dir = [a, b, c];
+                if dir.iter().all(|&x| x == 0.0) {
+                    continue;
+                }
+                let ray = Ray {
+                    org: [b, c, a],
+                    tmin: if i % 2 == 0 { 0.0 } else { -0.0 },
+                    dir,
+                    tmax: if j % 3 == 0 { f32::INFINITY } else { 2.0 },
+                };
+                cases.push((PreparedRay::new(&ray), [0.0, 1.0, 1e6][(i + j) % 3]));
+            }
+        }
+        let want: Vec<SlabConsts> = cases
+            .iter()
+            .map(|(r, sc)| SlabConsts::from_box_ray(&BoxRay::new(r, *sc)))
+            .collect();
+        for b in Backend::supported() {
+            let got = dispatch(b, Consts(cases.clone()));
+            for ((g, w), c) in got.iter().zip(&want).zip(&cases) {
+                let bits = |x: &[f32; 4]| x[..3].iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&g.inv), bits(&w.inv), "{b} {c:?}");
+                assert_eq!(bits(&g.near_oi), bits(&w.near_oi), "{b} {c:?}");
+                assert_eq!(bits(&g.far_oi), bits(&w.far_oi), "{b} {c:?}");
+                assert_eq!(
+                    (g.neg, g.tmin.to_bits(), g.tmax.to_bits()),
+                    (w.neg, w.tmin.to_bits(), w.tmax.to_bits()),
+                    "{b} {c:?}"
+                );
+            }
         }
     }
 }

@@ -14,7 +14,7 @@
 //! 8-wide vectors; elsewhere its two roundings stay within the same bound).
 
 use super::layout::TravNode;
-use super::ray::BoxRay;
+use super::ray::SlabConsts;
 use crate::simd::{FloatV, MaskV, Simd};
 
 /// Marker for the node width N (4 or 8), carrying its slab test.
@@ -26,15 +26,15 @@ pub trait SlabTest<const N: usize> {
     /// The ray's constants broadcast into registers.
     type Ray<S: Simd>: Copy;
     /// Broadcasts `r`.
-    fn ray<S: Simd>(s: S, r: &BoxRay) -> Self::Ray<S>;
+    fn ray<S: Simd>(s: S, r: &SlabConsts) -> Self::Ray<S>;
     /// The mask of children whose (grown) box the ray enters within `[tmin, tfar]`, bit i
     /// for lane i, and every lane's entry distance (meaningful where the bit is set; `>=
     /// tmin`, never NaN). Entry distances are returned in the first N of 8 lanes.
     fn test<S: Simd>(s: S, r: &Self::Ray<S>, node: &TravNode<N>, tfar: f32) -> (u32, [f32; 8]);
 }
 
-/// [`BoxRay`] in vector registers of width `V`, with the origins premultiplied so that a
-/// plane's distance is one fused multiply-add: `plane·inv - org·inv`.
+/// [`SlabConsts`] in vector registers of width `V`: a plane's distance is one fused
+/// multiply-add, `plane·inv - org·inv`.
 #[derive(Clone, Copy, Debug)]
 pub struct VRay<V> {
     inv: [V; 3],
@@ -53,22 +53,15 @@ macro_rules! slab_impl {
             type Ray<S: Simd> = VRay<S::$f>;
 
             #[inline(always)]
-            fn ray<S: Simd>(s: S, r: &BoxRay) -> VRay<S::$f> {
-                let oi = |o: f32, k: usize| s.$splat(-(o * r.inv[k]));
+            fn ray<S: Simd>(s: S, r: &SlabConsts) -> VRay<S::$f> {
+                let v = |a: &[f32; 4]| [s.$splat(a[0]), s.$splat(a[1]), s.$splat(a[2])];
+                let neg = |k: usize| (r.neg >> k & 1) as usize;
                 VRay {
-                    inv: [s.$splat(r.inv[0]), s.$splat(r.inv[1]), s.$splat(r.inv[2])],
-                    near_oi: [
-                        oi(r.near_org(0), 0),
-                        oi(r.near_org(1), 1),
-                        oi(r.near_org(2), 2),
-                    ],
-                    far_oi: [
-                        oi(r.far_org(0), 0),
-                        oi(r.far_org(1), 1),
-                        oi(r.far_org(2), 2),
-                    ],
-                    near: [r.near_row(0), r.near_row(1), r.near_row(2)],
-                    far: [r.far_row(0), r.far_row(1), r.far_row(2)],
+                    inv: v(&r.inv),
+                    near_oi: v(&r.near_oi),
+                    far_oi: v(&r.far_oi),
+                    near: [3 * neg(0), 1 + 3 * neg(1), 2 + 3 * neg(2)],
+                    far: [3 - 3 * neg(0), 4 - 3 * neg(1), 5 - 3 * neg(2)],
                     tmin: s.$splat(r.tmin),
                 }
             }

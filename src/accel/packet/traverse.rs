@@ -15,7 +15,6 @@
 
 use super::layout::PacketTree;
 use crate::accel::mbvh::ray::BoxRay;
-use crate::accel::mbvh::traverse::fields;
 use crate::accel::triangle::{PreparedRay, PreparedRay8, TriTest};
 use crate::accel::Query;
 use crate::geometry::{Hit, Ray};
@@ -53,7 +52,7 @@ pub fn packet<S: Simd, T: TriTest>(
     let first_only = occluded.is_some() || query == Query::Any;
     let mut best_t = [br[0].tmax, br[1].tmax, br[2].tmax, br[3].tmax];
     let mut best_id = [u32::MAX; PACKET];
-    let mut best_at: [Option<(usize, usize)>; PACKET] = [None; PACKET];
+    let mut best_uv = [(0.0f32, 0.0f32); PACKET];
     if active != 0 {
         // Scalar gathers; the vector loads stay in the kernel's own code.
         let col = |f: fn(&BoxRay) -> f32| [f(&br[0]), f(&br[1]), f(&br[2]), f(&br[3])];
@@ -108,17 +107,20 @@ pub fn packet<S: Simd, T: TriTest>(
             while hit != 0 {
                 let lane = hit.trailing_zeros() as usize & 3;
                 hit &= hit - 1;
-                let (m, t) = T::intersect8(s, &r8[lane], pack, s.splat_f8(best_t[lane]));
+                let (m, t, u, v) = T::intersect8_uv(s, &r8[lane], pack, s.splat_f8(best_t[lane]));
                 let mut bits = m.bitmask();
                 if bits == 0 {
                     continue;
                 }
-                if first_only {
-                    best_at[lane] = Some((node.pack as usize - 1, bits.trailing_zeros() as usize));
-                    active &= !(1 << lane);
-                    continue;
-                }
                 let ts = t.to_array();
+                let mut win = None;
+                if first_only {
+                    let j = bits.trailing_zeros() as usize & 7;
+                    (best_t[lane], best_id[lane]) = (ts[j], pack.ids[j]);
+                    win = Some(j);
+                    active &= !(1 << lane);
+                    bits = 0;
+                }
                 while bits != 0 {
                     let j = bits.trailing_zeros() as usize & 7;
                     bits &= bits - 1;
@@ -126,9 +128,12 @@ pub fn packet<S: Simd, T: TriTest>(
                     if t < best_t[lane] || (t == best_t[lane] && id < best_id[lane]) {
                         best_t[lane] = t;
                         best_id[lane] = id;
-                        best_at[lane] = Some((node.pack as usize - 1, j));
+                        win = Some(j);
                         changed = true;
                     }
+                }
+                if let Some(j) = win {
+                    best_uv[lane] = (u.to_array()[j], v.to_array()[j]);
                 }
             }
             if active == 0 {
@@ -140,14 +145,20 @@ pub fn packet<S: Simd, T: TriTest>(
         }
     }
     if let Some(out) = occluded {
-        for (o, at) in out.iter_mut().zip(&best_at) {
-            *o = u8::from(at.is_some());
+        for (o, &id) in out.iter_mut().zip(&best_id) {
+            *o = u8::from(id != u32::MAX);
         }
     } else if let Some(hits) = hits {
-        for ((h, at), r) in hits.iter_mut().zip(&best_at).zip(&pr) {
-            *h = match *at {
-                Some((p, lane)) => fields(r, &tree.packs[p], lane),
-                None => Hit::MISS,
+        for (i, h) in hits.iter_mut().enumerate() {
+            *h = if best_id[i] == u32::MAX {
+                Hit::MISS
+            } else {
+                Hit {
+                    t: best_t[i],
+                    prim: best_id[i],
+                    u: best_uv[i].0,
+                    v: best_uv[i].1,
+                }
             };
         }
     }

@@ -13,7 +13,9 @@
 //! The 8-wide tests return only the hit mask and t; the winner's barycentrics are recomputed
 //! by the scalar test on that one triangle ([`TriTest::intersect1`]), which by the identity
 //! above reproduces the 8-wide t exactly. Traversals thus never carry u, v through their
-//! inner loops.
+//! inner loops. Cores whose per-ray cost matters use [`TriTest::intersect8_uv`] instead,
+//! which also returns the 8-wide u, v (bit-identical to the scalar ones) so that no scalar
+//! test runs at the end.
 //!
 //! Hit rules (contract §2): t in the closed `[tmin, tmax]`, no culling, a zero determinant
 //! never hits. The interval test is done on the *final* t (`T · (1/det)`), not on `T`
@@ -285,6 +287,17 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
         tri: &Tri8<Self>,
         tmax: S::F8,
     ) -> (S::M8, S::F8);
+
+    /// [`TriTest::intersect8`] that also returns every lane's barycentrics `(u, v)`
+    /// (meaningless where the mask is clear), bit-identical to [`TriTest::intersect1`]'s:
+    /// a traversal keeps the winner's u, v as it goes instead of re-running the scalar
+    /// test at the end. The extra work is two multiplications where a lane is inside.
+    fn intersect8_uv<S: Simd>(
+        s: S,
+        ray: &PreparedRay8<S>,
+        tri: &Tri8<Self>,
+        tmax: S::F8,
+    ) -> (S::M8, S::F8, S::F8, S::F8);
 
     /// Scalar test on lane `lane` of `tri` (used to get the winner's u, v after an 8-wide
     /// search).

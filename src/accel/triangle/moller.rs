@@ -57,6 +57,17 @@ impl TriTest for MollerTrumbore {
         tri: &Tri8<Self>,
         tmax: S::F8,
     ) -> (S::M8, S::F8) {
+        let (hit, t, _, _) = Self::intersect8_uv(s, r, tri, tmax);
+        (hit, t)
+    }
+
+    #[inline(always)]
+    fn intersect8_uv<S: Simd>(
+        s: S,
+        r: &PreparedRay8<S>,
+        tri: &Tri8<Self>,
+        tmax: S::F8,
+    ) -> (S::M8, S::F8, S::F8, S::F8) {
         let ld = |i: usize, k: usize| s.load_f8(&tri.p[i][k]);
         let [dx, dy, dz] = r.dir;
         let (e2x, e2y, e2z) = (ld(2, 0), ld(2, 1), ld(2, 2));
@@ -78,9 +89,9 @@ impl TriTest for MollerTrumbore {
         // See the scalar test for why det == 0 needs no term of its own.
         let inside = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0));
         if inside.none() {
-            return (inside, zero);
+            return (inside, zero, zero, zero);
         }
         let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
-        (inside & t.ge(r.tmin) & t.le(tmax), t)
+        (inside & t.ge(r.tmin) & t.le(tmax), t, u, v)
     }
 }

@@ -52,6 +52,21 @@ impl<T: TriTest> Kernel for Eight<'_, T> {
     }
 }
 
+/// Runs the 8-wide test with barycentrics: `(hit bits, t, u, v per lane)`.
+struct EightUv<'a, T> {
+    ray: &'a PreparedRay,
+    pack: &'a Tri8<T>,
+}
+impl<T: TriTest> Kernel for EightUv<'_, T> {
+    type Output = (u32, [f32; 8], [f32; 8], [f32; 8]);
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> Self::Output {
+        let r8 = PreparedRay8::new(s, self.ray);
+        let (m, t, u, v) = T::intersect8_uv(s, &r8, self.pack, s.splat_f8(self.ray.tmax));
+        (m.bitmask(), t.to_array(), u.to_array(), v.to_array())
+    }
+}
+
 /// A random scene-like triangle: size 10^[-4, 3], centre up to `reach` from the origin.
 fn random_triangle(rng: &mut Rng, reach: f32) -> Triangle {
     let size = 10f32.powf(rng.unit() * 7.0 - 4.0);
@@ -144,6 +159,24 @@ fn check_exact<T: TriTest>(rng: &mut Rng) {
                             assert_eq!(t[l].to_bits(), h.t.to_bits(), "{b} lane {l}: t");
                         }
                         None => assert!(bits >> l & 1 == 0, "{b} lane {l} extra: {ray:?}"),
+                    }
+                }
+                let (bits_uv, t_uv, u, v) = dispatch(
+                    b,
+                    EightUv {
+                        ray: &ray,
+                        pack: &pack,
+                    },
+                );
+                assert_eq!(bits_uv, bits, "{b}: intersect8_uv's mask");
+                for l in 0..8 {
+                    if let Some(h) = scalar[l] {
+                        let got = [t_uv[l], u[l], v[l]].map(f32::to_bits);
+                        assert_eq!(
+                            got,
+                            [h.t, h.u, h.v].map(f32::to_bits),
+                            "{b} lane {l}: t, u, v"
+                        );
                     }
                 }
             }

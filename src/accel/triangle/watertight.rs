@@ -111,6 +111,17 @@ impl TriTest for Watertight {
         tri: &Tri8<Self>,
         tmax: S::F8,
     ) -> (S::M8, S::F8) {
+        let (hit, t, _, _) = Self::intersect8_uv(s, r, tri, tmax);
+        (hit, t)
+    }
+
+    #[inline(always)]
+    fn intersect8_uv<S: Simd>(
+        s: S,
+        r: &PreparedRay8<S>,
+        tri: &Tri8<Self>,
+        tmax: S::F8,
+    ) -> (S::M8, S::F8, S::F8, S::F8) {
         let [kx, ky, kz] = r.k;
         let [sx, sy, sz] = r.shear;
         let [ox, oy, oz] = r.org_k;
@@ -144,12 +155,14 @@ impl TriTest for Watertight {
         }
         let inside = u.min(v).min(w).ge(zero) | u.max(v).max(w).le(zero);
         if inside.none() {
-            return (inside, zero);
+            return (inside, zero, zero, zero);
         }
         let det = u + v + w;
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
-        let t = tt * (s.splat_f8(1.0) / det);
+        let rcp = s.splat_f8(1.0) / det;
+        let t = tt * rcp;
         let hit = inside & det.ne(zero) & t.ge(r.tmin) & t.le(tmax);
-        (hit, t)
+        // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
+        (hit, t, v * rcp, w * rcp)
     }
 }
