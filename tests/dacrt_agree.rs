@@ -60,8 +60,16 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-sampled-small", sampled_small, 1),
         ("dacrt-par", forced_parallel(small_leaves), 2),
         ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
-        ("dacrt-par-tris", tris_split(forced_parallel(small_leaves)), 2),
-        ("dacrt-sampled-par-tris", tris_split(forced_parallel(sampled_small)), 3),
+        (
+            "dacrt-par-tris",
+            tris_split(forced_parallel(small_leaves)),
+            2,
+        ),
+        (
+            "dacrt-sampled-par-tris",
+            tris_split(forced_parallel(sampled_small)),
+            3,
+        ),
     ]
 }
 
@@ -440,4 +448,59 @@ fn empty_scene_and_all_degenerate_scene_miss() {
     };
     check(&[d, d], &rays).unwrap();
     check(&[d], &[]).unwrap();
+}
+
+/// Traces a ray set dumped by `rayd bench --dump` on the bench's interior view of a scene,
+/// once, inside [`profiled_trace`], for instruction and cache counts that do not depend on
+/// the machine's load (`valgrind --tool=cachegrind --toggle-collect='*profiled_trace*'`).
+/// Skipped unless `DACRT_PROFILE_SCENE` and `DACRT_PROFILE_RAYS` are set; `DACRT_PROFILE_ACCEL`
+/// picks the accelerator (default `dacrt`).
+#[test]
+#[ignore]
+fn profile_one_trace() {
+    let (Ok(scene), Ok(rays)) = (
+        std::env::var("DACRT_PROFILE_SCENE"),
+        std::env::var("DACRT_PROFILE_RAYS"),
+    ) else {
+        return;
+    };
+    let scene = rayd::formats::load_scene(
+        std::path::Path::new(&scene),
+        &rayd::formats::LoadOptions::default(),
+    )
+    .unwrap();
+    let view = rayd::bench::View::new(
+        &scene,
+        rayd::bench::ViewKind::Interior,
+        &rayd::bench::CameraChoice::Auto,
+        1024,
+        768,
+    )
+    .unwrap();
+    let rays = rayd::formats::binary::read_rays(&std::fs::read(rays).unwrap()).unwrap();
+    let kind = std::env::var("DACRT_PROFILE_ACCEL").unwrap_or_else(|_| "dacrt".into());
+    let accel = build(
+        AccelKind::parse(&kind).unwrap(),
+        &view.triangles,
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let t0 = std::time::Instant::now();
+    pool.install(|| profiled_trace(accel.as_ref(), &rays, &mut hits));
+    eprintln!(
+        "{kind}: {} rays in {:.1} ms, {} hit",
+        rays.len(),
+        t0.elapsed().as_secs_f64() * 1e3,
+        hits.iter().filter(|h| h.is_hit()).count()
+    );
+}
+
+#[inline(never)]
+fn profiled_trace(accel: &dyn Intersector, rays: &[Ray], hits: &mut [Hit]) {
+    accel.trace(rays, Query::Closest, hits);
 }

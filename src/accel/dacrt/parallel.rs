@@ -107,7 +107,9 @@ pub fn par_partition<T: Send, R: Send>(
         l = if a1.is_empty() { li.next() } else { Some(a1) };
         h = if b1.is_empty() { hi.next() } else { Some(b1) };
     }
-    pairs.into_par_iter().for_each(|(a, b)| a.swap_with_slice(b));
+    pairs
+        .into_par_iter()
+        .for_each(|(a, b)| a.swap_with_slice(b));
     let summary = results
         .into_iter()
         .map(|r| r.1)
@@ -341,7 +343,12 @@ impl Copy {
                 link.push(i as u32);
             }
         } else {
-            filter_copy(parent, &FilterBox::new(&child.node.bounds), &mut rays, &mut link);
+            filter_copy(
+                parent,
+                &FilterBox::new(&child.node.bounds),
+                &mut rays,
+                &mut link,
+            );
         }
         let hits = rays.iter().map(|r| open_slot(r.tmax())).collect();
         let tmin = if ptmin.is_empty() {
