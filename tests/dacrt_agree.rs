@@ -7,11 +7,53 @@
 //! closest hit must agree *exactly*: same triangle, same `t` bits, and ties at equal `t`
 //! resolved to the lowest id. `any` must agree on hit/miss, and its hit must be a real hit.
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+use std::sync::{Mutex, MutexGuard};
+
 use proptest::prelude::*;
 use rayd::accel::dacrt::leaf::{LeafTest, Moller, Watertight};
 use rayd::accel::dacrt::{Dacrt, DacrtOptions, ForkSplit};
 use rayd::accel::{build, AccelKind, BuildOptions, Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
+
+/// Counts the heap: bytes in use now and the most in use since the last reset, so that the
+/// memory test can measure what DACRT itself allocates.
+struct Counting;
+
+static IN_USE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: every call is forwarded to the system allocator unchanged; the counters are
+// plain atomics.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        // SAFETY: the caller's contract is passed on to `System`.
+        let p = unsafe { System.alloc(l) };
+        if !p.is_null() {
+            let now = IN_USE.fetch_add(l.size(), Relaxed) + l.size();
+            PEAK.fetch_max(now, Relaxed);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: as above.
+        unsafe { System.dealloc(p, l) };
+        IN_USE.fetch_sub(l.size(), Relaxed);
+    }
+}
+
+#[global_allocator]
+static ALLOC: Counting = Counting;
+
+/// Tests of this file run one at a time, so that the memory test counts only its own
+/// allocations.
+fn exclusive() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 /// The reference: `brute` of the same precision (every ray against every triangle).
 fn reference(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Vec<Hit> {
@@ -95,6 +137,7 @@ fn run_occluded(a: &Dacrt, rays: &[Ray], threads: usize) -> Vec<u8> {
 
 /// Checks every variant and query against the reference; returns the first disagreement.
 fn check(tris: &[Triangle], rays: &[Ray]) -> Result<(), String> {
+    let _alone = exclusive();
     for precision in [Precision::Watertight, Precision::Fast] {
         let want = reference(tris, rays, precision);
         for (label, opts, threads) in variants() {
@@ -396,6 +439,82 @@ fn sphere(stacks: usize, slices: usize, r: f32) -> Vec<Triangle> {
         }
     }
     out
+}
+
+/// The papers' budget: 32·R + (48 + 4·N)·T bytes for R rays, T triangles and N threads,
+/// stack and hits excluded. DACRT's own heap (the precompute held between traces, and what
+/// a trace allocates: records, the id array, fork copies) must stay within 1.2 times it;
+/// the scene, the input rays and the output hits are not counted.
+#[test]
+fn memory_stays_within_the_papers_budget() {
+    let tris = sphere(250, 400, 1.0); // 200 000 triangles
+    let t = tris.len();
+    let mut s = 99u64;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    };
+    let rays: Vec<Ray> = (0..500_000)
+        .map(|i| Ray {
+            org: if i % 2 == 0 {
+                [0.2 * rnd(), 0.2 * rnd(), 0.2 * rnd()]
+            } else {
+                [0.0, 0.0, 3.0]
+            },
+            tmin: 0.0,
+            dir: if i % 2 == 0 {
+                [rnd(), rnd(), rnd() + 1e-3]
+            } else {
+                [0.5 * rnd(), 0.5 * rnd(), -1.0]
+            },
+            tmax: f32::INFINITY,
+        })
+        .collect();
+    let r = rays.len();
+    let mut hits = vec![Hit::MISS; r];
+    let mut flags = vec![0u8; r];
+    for threads in [1usize, 2] {
+        for opts in [DacrtOptions::afra(), DacrtOptions::nabata()] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let _alone = exclusive();
+            let base = IN_USE.load(Relaxed);
+            let a =
+                pool.install(|| Dacrt::with_options("dacrt", &tris, Precision::default(), opts));
+            let held = IN_USE.load(Relaxed) - base;
+            PEAK.store(IN_USE.load(Relaxed), Relaxed);
+            pool.install(|| a.trace(&rays, Query::Closest, &mut hits));
+            let trace_peak = PEAK.load(Relaxed) - base;
+            PEAK.store(IN_USE.load(Relaxed), Relaxed);
+            pool.install(|| a.occluded(&rays, &mut flags));
+            let occluded_peak = PEAK.load(Relaxed) - base;
+            drop(a);
+            let budget = 32 * r + (48 + 4 * threads) * t;
+            eprintln!(
+                "memory: {threads} thread(s), sampling {}: held {held} B ({:.1} B/tri), \
+                 trace peak {trace_peak} B, occluded peak {occluded_peak} B; papers' budget \
+                 {budget} B: trace at {:.3}x",
+                opts.sampling.enabled(),
+                held as f64 / t as f64,
+                trace_peak as f64 / budget as f64
+            );
+            assert!(held as f64 <= 48.1 * t as f64, "precompute {held} B");
+            assert!(
+                trace_peak as f64 <= 1.2 * budget as f64,
+                "trace peak {trace_peak} B > 1.2 × {budget} B"
+            );
+            // `occluded` has no output hit records to hold the hit slots in: its own 16 B
+            // per ray are the hits that the budget leaves out.
+            assert!(
+                occluded_peak as f64 <= 1.2 * budget as f64 + 16.0 * r as f64,
+                "occluded peak {occluded_peak} B"
+            );
+        }
+    }
 }
 
 #[test]
