@@ -17,12 +17,21 @@ use rayd::accel::dacrt::{Dacrt, DacrtOptions, ForkSplit};
 use rayd::accel::{build, AccelKind, BuildOptions, Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
 
-/// Counts the heap: bytes in use now and the most in use since the last reset, so that the
-/// memory test can measure what DACRT itself allocates.
+/// Counts the heap of the threads that are marked [`COUNTED`] (the memory test's thread and
+/// its pool's): bytes in use now and the most in use since the last reset, so that the memory
+/// test measures what DACRT itself allocates, whatever other tests do meanwhile.
 struct Counting;
 
 static IN_USE: AtomicUsize = AtomicUsize::new(0);
 static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    static COUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+fn counted() -> bool {
+    COUNTED.try_with(|c| c.get()).unwrap_or(false)
+}
 
 // SAFETY: every call is forwarded to the system allocator unchanged; the counters are
 // plain atomics.
@@ -31,7 +40,7 @@ unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, l: Layout) -> *mut u8 {
         // SAFETY: the caller's contract is passed on to `System`.
         let p = unsafe { System.alloc(l) };
-        if !p.is_null() {
+        if !p.is_null() && counted() {
             let now = IN_USE.fetch_add(l.size(), Relaxed) + l.size();
             PEAK.fetch_max(now, Relaxed);
         }
@@ -41,15 +50,16 @@ unsafe impl GlobalAlloc for Counting {
     unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
         // SAFETY: as above.
         unsafe { System.dealloc(p, l) };
-        IN_USE.fetch_sub(l.size(), Relaxed);
+        if counted() {
+            IN_USE.fetch_sub(l.size(), Relaxed);
+        }
     }
 }
 
 #[global_allocator]
 static ALLOC: Counting = Counting;
 
-/// Tests of this file run one at a time, so that the memory test counts only its own
-/// allocations.
+/// Tests of this file run one at a time (they are heavy, and the machine has few cores).
 fn exclusive() -> MutexGuard<'static, ()> {
     static LOCK: Mutex<()> = Mutex::new(());
     LOCK.lock().unwrap_or_else(|e| e.into_inner())
@@ -479,9 +489,11 @@ fn memory_stays_within_the_papers_budget() {
         for opts in [DacrtOptions::afra(), DacrtOptions::nabata()] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
+                .start_handler(|_| COUNTED.with(|c| c.set(true)))
                 .build()
                 .unwrap();
             let _alone = exclusive();
+            COUNTED.with(|c| c.set(true));
             let base = IN_USE.load(Relaxed);
             let a =
                 pool.install(|| Dacrt::with_options("dacrt", &tris, Precision::default(), opts));
@@ -493,6 +505,7 @@ fn memory_stays_within_the_papers_budget() {
             pool.install(|| a.occluded(&rays, &mut flags));
             let occluded_peak = PEAK.load(Relaxed) - base;
             drop(a);
+            COUNTED.with(|c| c.set(false));
             let budget = 32 * r + (48 + 4 * threads) * t;
             eprintln!(
                 "memory: {threads} thread(s), sampling {}: held {held} B ({:.1} B/tri), \
