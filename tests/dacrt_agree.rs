@@ -91,6 +91,13 @@ fn forced_parallel(mut o: DacrtOptions) -> DacrtOptions {
     o
 }
 
+/// Ray-split forks from the root down to tiny steps, no data-parallel steps (the default
+/// scheme, with its thresholds lowered).
+fn root_forks(mut o: DacrtOptions) -> DacrtOptions {
+    o.parallel.fork_min_rays = 8;
+    o
+}
+
 fn tris_split(mut o: DacrtOptions) -> DacrtOptions {
     o.parallel.split = ForkSplit::Tris;
     o
@@ -112,6 +119,8 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-sampled-small", sampled_small, 1),
         ("dacrt-par", forced_parallel(small_leaves), 2),
         ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
+        ("dacrt-root-forks", root_forks(small_leaves), 2),
+        ("dacrt-sampled-root-forks", root_forks(sampled_small), 3),
         (
             "dacrt-par-tris",
             tris_split(forced_parallel(small_leaves)),
@@ -147,6 +156,34 @@ fn run_occluded(a: &Dacrt, rays: &[Ray], threads: usize) -> Vec<u8> {
 
 /// Checks every variant and query against the reference; returns the first disagreement.
 fn check(tris: &[Triangle], rays: &[Ray]) -> Result<(), String> {
+    let r = check_inner(tris, rays);
+    if r.is_err() {
+        if let Ok(path) = std::env::var("DACRT_DUMP_FAIL") {
+            let mut out = String::new();
+            for t in tris {
+                for p in t.v {
+                    for c in p {
+                        out += &format!("{} ", c.to_bits());
+                    }
+                }
+                out += "\n";
+            }
+            out += "rays\n";
+            for r in rays {
+                for c in [
+                    r.org[0], r.org[1], r.org[2], r.tmin, r.dir[0], r.dir[1], r.dir[2], r.tmax,
+                ] {
+                    out += &format!("{} ", c.to_bits());
+                }
+                out += "\n";
+            }
+            std::fs::write(path, out).unwrap();
+        }
+    }
+    r
+}
+
+fn check_inner(tris: &[Triangle], rays: &[Ray]) -> Result<(), String> {
     let _alone = exclusive();
     for precision in [Precision::Watertight, Precision::Fast] {
         let want = reference(tris, rays, precision);
@@ -586,7 +623,7 @@ fn empty_scene_and_all_degenerate_scene_miss() {
 /// once, inside [`profiled_trace`], for instruction and cache counts that do not depend on
 /// the machine's load (`valgrind --tool=cachegrind --toggle-collect='*profiled_trace*'`).
 /// Skipped unless `DACRT_PROFILE_SCENE` and `DACRT_PROFILE_RAYS` are set; `DACRT_PROFILE_ACCEL`
-/// picks the accelerator (default `dacrt`).
+/// picks the accelerator (default `dacrt`), `DACRT_PROFILE_THREADS` the pool (default 1).
 #[test]
 #[ignore]
 fn profile_one_trace() {
@@ -617,8 +654,12 @@ fn profile_one_trace() {
         &BuildOptions::default(),
     )
     .unwrap();
+    let threads = std::env::var("DACRT_PROFILE_THREADS")
+        .ok()
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(1);
     let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(1)
+        .num_threads(threads)
         .build()
         .unwrap();
     let mut hits = vec![Hit::MISS; rays.len()];

@@ -67,9 +67,12 @@ pub enum ForkSplit {
 pub struct Parallelism {
     /// Master switch (off: one thread whatever the pool).
     pub enabled: bool,
-    /// Nodes with at least this many active rays filter them data-parallel, in place (the
-    /// trace lowers it to a quarter of the fork budget when that is smaller, so that forks
-    /// are small enough to fit several at once).
+    /// Nodes with at least this many active rays filter them data-parallel, in place,
+    /// instead of forking. Off by default (ray-split forks from the root cost only a second
+    /// partitioning of the top few nodes, while a data-parallel filter moves misplaced
+    /// records a second time at every node); with triangle-split forks the trace lowers it
+    /// to a quarter of the fork budget, so that forks are small enough to fit several at
+    /// once.
     pub data_min_rays: usize,
     /// Nodes with fewer than `data_min_rays` but at least this many active rays hand their
     /// second child to another thread (with a copy of its rays).
@@ -88,7 +91,7 @@ impl Default for Parallelism {
     fn default() -> Self {
         Parallelism {
             enabled: true,
-            data_min_rays: 1 << 16,
+            data_min_rays: usize::MAX,
             fork_min_rays: 1 << 10,
             fork_budget: 0.125,
             data_min_tris: 1 << 13,

@@ -98,9 +98,19 @@ impl RayRec {
 /// whose triangle `brute` would report at exactly the current `tmax` (ties decide by id).
 pub(super) const T_SLACK: f32 = 1.0 / 4096.0;
 
-/// A box prepared for filtering: grown by a hair on every side so that a ray lying exactly in
-/// a face plane (an axis-parallel ray through a triangle's edge) never produces `0 × ∞`,
-/// and so that rounding in the slab distances cannot drop a ray that touches the box.
+/// A box prepared for filtering, grown on every side by `2^-12` of its largest extent plus
+/// `2^-20` of its coordinates' magnitude (and never by less than the smallest normal
+/// float), for three reasons:
+///
+/// - a ray lying exactly in a face plane (an axis-parallel ray through a triangle's edge)
+///   must not produce `0 × ∞` in the slab test;
+/// - rounding in the slab distances must not drop a ray that touches the box;
+/// - the triangle test's `t` has an absolute error that grows with the triangle's size,
+///   not with `t`: a huge triangle (here 10⁴ long) met a unit away can be reported by
+///   `brute` at a `t` whose point lies visibly outside the triangle's own box (a flat box
+///   at `y = 0` reported at `y = −0.15`). Culling that ray by `tmax` against the exact box
+///   would then disagree with `brute`; the margin, proportional to the box's extent, keeps
+///   such hits inside. It costs nothing measurable in culling.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FilterBox {
     /// Lower corner.
@@ -116,9 +126,11 @@ impl FilterBox {
             min: b.min,
             max: b.max,
         };
+        let e = b.extent();
+        let size = e[0].max(e[1]).max(e[2]) * (1.0 / 4096.0);
         for k in 0..3 {
             let m = b.min[k].abs().max(b.max[k].abs());
-            let eps = m * (1.0 / (1 << 20) as f32) + f32::MIN_POSITIVE;
+            let eps = size + m * (1.0 / (1 << 20) as f32) + f32::MIN_POSITIVE;
             f.min[k] = b.min[k] - eps;
             f.max[k] = b.max[k] + eps;
         }
