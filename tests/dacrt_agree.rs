@@ -7,11 +7,63 @@
 //! closest hit must agree *exactly*: same triangle, same `t` bits, and ties at equal `t`
 //! resolved to the lowest id. `any` must agree on hit/miss, and its hit must be a real hit.
 
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+use std::sync::{Mutex, MutexGuard};
+
 use proptest::prelude::*;
 use rayd::accel::dacrt::leaf::{LeafTest, Moller, Watertight};
 use rayd::accel::dacrt::{Dacrt, DacrtOptions, ForkSplit};
 use rayd::accel::{build, AccelKind, BuildOptions, Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
+
+/// Counts the heap of the threads that are marked [`COUNTED`] (the memory test's thread and
+/// its pool's): bytes in use now and the most in use since the last reset, so that the memory
+/// test measures what DACRT itself allocates, whatever other tests do meanwhile.
+struct Counting;
+
+static IN_USE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    static COUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+fn counted() -> bool {
+    COUNTED.try_with(|c| c.get()).unwrap_or(false)
+}
+
+// SAFETY: every call is forwarded to the system allocator unchanged; the counters are
+// plain atomics.
+#[allow(unsafe_code)]
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, l: Layout) -> *mut u8 {
+        // SAFETY: the caller's contract is passed on to `System`.
+        let p = unsafe { System.alloc(l) };
+        if !p.is_null() && counted() {
+            let now = IN_USE.fetch_add(l.size(), Relaxed) + l.size();
+            PEAK.fetch_max(now, Relaxed);
+        }
+        p
+    }
+
+    unsafe fn dealloc(&self, p: *mut u8, l: Layout) {
+        // SAFETY: as above.
+        unsafe { System.dealloc(p, l) };
+        if counted() {
+            IN_USE.fetch_sub(l.size(), Relaxed);
+        }
+    }
+}
+
+#[global_allocator]
+static ALLOC: Counting = Counting;
+
+/// Tests of this file run one at a time (they are heavy, and the machine has few cores).
+fn exclusive() -> MutexGuard<'static, ()> {
+    static LOCK: Mutex<()> = Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
+}
 
 /// The reference: `brute` of the same precision (every ray against every triangle).
 fn reference(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Vec<Hit> {
@@ -39,6 +91,13 @@ fn forced_parallel(mut o: DacrtOptions) -> DacrtOptions {
     o
 }
 
+/// Ray-split forks from the root down to tiny steps, no data-parallel steps (the default
+/// scheme, with its thresholds lowered).
+fn root_forks(mut o: DacrtOptions) -> DacrtOptions {
+    o.parallel.fork_min_rays = 8;
+    o
+}
+
 fn tris_split(mut o: DacrtOptions) -> DacrtOptions {
     o.parallel.split = ForkSplit::Tris;
     o
@@ -60,6 +119,8 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-sampled-small", sampled_small, 1),
         ("dacrt-par", forced_parallel(small_leaves), 2),
         ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
+        ("dacrt-root-forks", root_forks(small_leaves), 2),
+        ("dacrt-sampled-root-forks", root_forks(sampled_small), 3),
         (
             "dacrt-par-tris",
             tris_split(forced_parallel(small_leaves)),
@@ -95,6 +156,35 @@ fn run_occluded(a: &Dacrt, rays: &[Ray], threads: usize) -> Vec<u8> {
 
 /// Checks every variant and query against the reference; returns the first disagreement.
 fn check(tris: &[Triangle], rays: &[Ray]) -> Result<(), String> {
+    let r = check_inner(tris, rays);
+    if r.is_err() {
+        if let Ok(path) = std::env::var("DACRT_DUMP_FAIL") {
+            let mut out = String::new();
+            for t in tris {
+                for p in t.v {
+                    for c in p {
+                        out += &format!("{} ", c.to_bits());
+                    }
+                }
+                out += "\n";
+            }
+            out += "rays\n";
+            for r in rays {
+                for c in [
+                    r.org[0], r.org[1], r.org[2], r.tmin, r.dir[0], r.dir[1], r.dir[2], r.tmax,
+                ] {
+                    out += &format!("{} ", c.to_bits());
+                }
+                out += "\n";
+            }
+            std::fs::write(path, out).unwrap();
+        }
+    }
+    r
+}
+
+fn check_inner(tris: &[Triangle], rays: &[Ray]) -> Result<(), String> {
+    let _alone = exclusive();
     for precision in [Precision::Watertight, Precision::Fast] {
         let want = reference(tris, rays, precision);
         for (label, opts, threads) in variants() {
@@ -398,6 +488,85 @@ fn sphere(stacks: usize, slices: usize, r: f32) -> Vec<Triangle> {
     out
 }
 
+/// The papers' budget: 32·R + (48 + 4·N)·T bytes for R rays, T triangles and N threads,
+/// stack and hits excluded. DACRT's own heap (the precompute held between traces, and what
+/// a trace allocates: records, the id array, fork copies) must stay within 1.2 times it;
+/// the scene, the input rays and the output hits are not counted.
+#[test]
+fn memory_stays_within_the_papers_budget() {
+    let tris = sphere(250, 400, 1.0); // 200 000 triangles
+    let t = tris.len();
+    let mut s = 99u64;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((s >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+    };
+    let rays: Vec<Ray> = (0..500_000)
+        .map(|i| Ray {
+            org: if i % 2 == 0 {
+                [0.2 * rnd(), 0.2 * rnd(), 0.2 * rnd()]
+            } else {
+                [0.0, 0.0, 3.0]
+            },
+            tmin: 0.0,
+            dir: if i % 2 == 0 {
+                [rnd(), rnd(), rnd() + 1e-3]
+            } else {
+                [0.5 * rnd(), 0.5 * rnd(), -1.0]
+            },
+            tmax: f32::INFINITY,
+        })
+        .collect();
+    let r = rays.len();
+    let mut hits = vec![Hit::MISS; r];
+    let mut flags = vec![0u8; r];
+    for threads in [1usize, 2] {
+        for opts in [DacrtOptions::afra(), DacrtOptions::nabata()] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .start_handler(|_| COUNTED.with(|c| c.set(true)))
+                .build()
+                .unwrap();
+            let _alone = exclusive();
+            COUNTED.with(|c| c.set(true));
+            let base = IN_USE.load(Relaxed);
+            let a =
+                pool.install(|| Dacrt::with_options("dacrt", &tris, Precision::default(), opts));
+            let held = IN_USE.load(Relaxed) - base;
+            PEAK.store(IN_USE.load(Relaxed), Relaxed);
+            pool.install(|| a.trace(&rays, Query::Closest, &mut hits));
+            let trace_peak = PEAK.load(Relaxed) - base;
+            PEAK.store(IN_USE.load(Relaxed), Relaxed);
+            pool.install(|| a.occluded(&rays, &mut flags));
+            let occluded_peak = PEAK.load(Relaxed) - base;
+            drop(a);
+            COUNTED.with(|c| c.set(false));
+            let budget = 32 * r + (48 + 4 * threads) * t;
+            eprintln!(
+                "memory: {threads} thread(s), sampling {}: held {held} B ({:.1} B/tri), \
+                 trace peak {trace_peak} B, occluded peak {occluded_peak} B; papers' budget \
+                 {budget} B: trace at {:.3}x",
+                opts.sampling.enabled(),
+                held as f64 / t as f64,
+                trace_peak as f64 / budget as f64
+            );
+            assert!(held as f64 <= 48.1 * t as f64, "precompute {held} B");
+            assert!(
+                trace_peak as f64 <= 1.2 * budget as f64,
+                "trace peak {trace_peak} B > 1.2 × {budget} B"
+            );
+            // `occluded` has no output hit records to hold the hit slots in: its own 16 B
+            // per ray are the hits that the budget leaves out.
+            assert!(
+                occluded_peak as f64 <= 1.2 * budget as f64 + 16.0 * r as f64,
+                "occluded peak {occluded_peak} B"
+            );
+        }
+    }
+}
+
 #[test]
 fn ties_go_to_the_lowest_id() {
     // Four copies of one quad, in shuffled id order, plus a farther one: every ray ties
@@ -448,4 +617,63 @@ fn empty_scene_and_all_degenerate_scene_miss() {
     };
     check(&[d, d], &rays).unwrap();
     check(&[d], &[]).unwrap();
+}
+
+/// Traces a ray set dumped by `rayd bench --dump` on the bench's interior view of a scene,
+/// once, inside [`profiled_trace`], for instruction and cache counts that do not depend on
+/// the machine's load (`valgrind --tool=cachegrind --toggle-collect='*profiled_trace*'`).
+/// Skipped unless `DACRT_PROFILE_SCENE` and `DACRT_PROFILE_RAYS` are set; `DACRT_PROFILE_ACCEL`
+/// picks the accelerator (default `dacrt`), `DACRT_PROFILE_THREADS` the pool (default 1).
+#[test]
+#[ignore]
+fn profile_one_trace() {
+    let (Ok(scene), Ok(rays)) = (
+        std::env::var("DACRT_PROFILE_SCENE"),
+        std::env::var("DACRT_PROFILE_RAYS"),
+    ) else {
+        return;
+    };
+    let scene = rayd::formats::load_scene(
+        std::path::Path::new(&scene),
+        &rayd::formats::LoadOptions::default(),
+    )
+    .unwrap();
+    let view = rayd::bench::View::new(
+        &scene,
+        rayd::bench::ViewKind::Interior,
+        &rayd::bench::CameraChoice::Auto,
+        1024,
+        768,
+    )
+    .unwrap();
+    let rays = rayd::formats::binary::read_rays(&std::fs::read(rays).unwrap()).unwrap();
+    let kind = std::env::var("DACRT_PROFILE_ACCEL").unwrap_or_else(|_| "dacrt".into());
+    let accel = build(
+        AccelKind::parse(&kind).unwrap(),
+        &view.triangles,
+        &BuildOptions::default(),
+    )
+    .unwrap();
+    let threads = std::env::var("DACRT_PROFILE_THREADS")
+        .ok()
+        .and_then(|t| t.parse().ok())
+        .unwrap_or(1);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    let t0 = std::time::Instant::now();
+    pool.install(|| profiled_trace(accel.as_ref(), &rays, &mut hits));
+    eprintln!(
+        "{kind}: {} rays in {:.1} ms, {} hit",
+        rays.len(),
+        t0.elapsed().as_secs_f64() * 1e3,
+        hits.iter().filter(|h| h.is_hit()).count()
+    );
+}
+
+#[inline(never)]
+fn profiled_trace(accel: &dyn Intersector, rays: &[Ray], hits: &mut [Hit]) {
+    accel.trace(rays, Query::Closest, hits);
 }

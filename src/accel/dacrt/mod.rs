@@ -145,7 +145,12 @@ impl Dacrt {
                 parallel,
                 budget: AtomicIsize::new(budget as isize),
                 workers: parallel::Workers::new(threads),
-                data_min_rays: p.data_min_rays.min((budget / 4).max(4 * p.fork_min_rays)),
+                // Triangle-split forks copy rays: keep them small enough that several fit
+                // in the budget. Ray-split forks copy none.
+                data_min_rays: match p.split {
+                    ForkSplit::Tris => p.data_min_rays.min((budget / 4).max(4 * p.fork_min_rays)),
+                    ForkSplit::Rays => p.data_min_rays,
+                },
             };
             let root = Node {
                 bounds: self.tris.bounds,

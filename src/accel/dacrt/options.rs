@@ -19,6 +19,9 @@ pub struct Sampling {
     /// Cost of a ray/box test relative to a ray/triangle test (`C_bv / C_tri` of eq. 5),
     /// for the skip decision of children that will be leaves.
     pub box_cost: f32,
+    /// Weight of the SAH's area ratio in the sampled hit probability, in sample rays
+    /// (`sampling::sampled_cost`; 0: the paper's cost).
+    pub prior: f32,
 }
 
 impl Sampling {
@@ -30,6 +33,7 @@ impl Sampling {
         samples: 100,
         min_rays: 1000,
         box_cost: 1.0,
+        prior: 0.0,
     };
 
     /// All three gains: Nabata et al. 2013.
@@ -40,6 +44,7 @@ impl Sampling {
         samples: 100,
         min_rays: 1000,
         box_cost: 1.0,
+        prior: 50.0,
     };
 
     /// Whether any gain is on.
@@ -62,9 +67,12 @@ pub enum ForkSplit {
 pub struct Parallelism {
     /// Master switch (off: one thread whatever the pool).
     pub enabled: bool,
-    /// Nodes with at least this many active rays filter them data-parallel, in place (the
-    /// trace lowers it to a quarter of the fork budget when that is smaller, so that forks
-    /// are small enough to fit several at once).
+    /// Nodes with at least this many active rays filter them data-parallel, in place,
+    /// instead of forking. Off by default (ray-split forks from the root cost only a second
+    /// partitioning of the top few nodes, while a data-parallel filter moves misplaced
+    /// records a second time at every node); with triangle-split forks the trace lowers it
+    /// to a quarter of the fork budget, so that forks are small enough to fit several at
+    /// once.
     pub data_min_rays: usize,
     /// Nodes with fewer than `data_min_rays` but at least this many active rays hand their
     /// second child to another thread (with a copy of its rays).
@@ -83,7 +91,7 @@ impl Default for Parallelism {
     fn default() -> Self {
         Parallelism {
             enabled: true,
-            data_min_rays: 1 << 16,
+            data_min_rays: usize::MAX,
             fork_min_rays: 1 << 10,
             fork_budget: 0.125,
             data_min_tris: 1 << 13,
@@ -117,6 +125,10 @@ pub struct DacrtOptions {
     /// The SAH may end the recursion only for nodes of at most this many triangles (a
     /// greedy SAH stop on a big node would make a huge leaf).
     pub sah_stop_max: usize,
+    /// Filter both children in one pass (a three-way partition), and after the first child
+    /// filter only its rays again for the second (not in the papers; off: Áfra's two full
+    /// passes).
+    pub two_box: bool,
     /// Nabata's gains.
     pub sampling: Sampling,
     /// Threads.
@@ -131,12 +143,13 @@ impl DacrtOptions {
     pub fn afra() -> DacrtOptions {
         DacrtOptions {
             leaf_rays: 8,
-            leaf_tris: 8,
+            leaf_tris: 16,
             sah_ratio: 1.5,
             all_axes: false,
             big_fraction: 0.1,
             traversal_cost: 1.0,
             sah_stop_max: 32,
+            two_box: false,
             sampling: Sampling::OFF,
             parallel: Parallelism::default(),
             stats: false,
@@ -157,7 +170,7 @@ impl DacrtOptions {
     }
 
     /// Applies overrides from `get(name)`: `RAYD_DACRT_LEAF_RAYS`, `_LEAF_TRIS`,
-    /// `_SAH_RATIO`, `_ALL_AXES` (0/1), `_BIG_FRACTION`, `_TRAVERSAL_COST`, `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_COST`,
+    /// `_SAH_RATIO`, `_ALL_AXES` (0/1), `_BIG_FRACTION`, `_TRAVERSAL_COST`, `_TWO_BOX` (0/1), `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_PRIOR`, `_SAMPLE_COST`,
     /// `_SAMPLE_ORDER`, `_SAMPLE_SKIP` (0/1; only where sampling is on), `_PARALLEL` (0/1),
     /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_FORK_SPLIT` (rays/tris), `_STATS` (0/1).
     /// Unparsable values are ignored.
@@ -182,9 +195,11 @@ impl DacrtOptions {
         flag(g("ALL_AXES"), &mut self.all_axes);
         num(g("BIG_FRACTION"), &mut self.big_fraction);
         num(g("SAH_STOP_MAX"), &mut self.sah_stop_max);
+        flag(g("TWO_BOX"), &mut self.two_box);
         num(g("SAMPLES"), &mut self.sampling.samples);
         num(g("SAMPLE_MIN_RAYS"), &mut self.sampling.min_rays);
         num(g("BOX_COST"), &mut self.sampling.box_cost);
+        num(g("SAMPLE_PRIOR"), &mut self.sampling.prior);
         if self.sampling.enabled() {
             flag(g("SAMPLE_COST"), &mut self.sampling.cost);
             flag(g("SAMPLE_ORDER"), &mut self.sampling.order);

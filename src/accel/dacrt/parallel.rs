@@ -37,7 +37,7 @@ use rayon::prelude::*;
 use crate::geometry::Hit;
 
 use super::leaf::{leaf, merge_slot, LeafTest, Sink, Table};
-use super::rays::{filter, filter_copy, FilterBox, RayRec};
+use super::rays::{filter, filter_copy, FilterBox, RayRec, SLOT_MASK};
 use super::split::{middle_plane, partition_acc, Acc, Bins, Node, Parts};
 use super::stats::{lap, Stats};
 use super::traverse::{step, visit, Child, Ctx};
@@ -242,15 +242,12 @@ pub fn leaf_par<T: LeafTest>(ctx: &Ctx, rays: &mut [RayRec], table: &mut Table, 
     }
 }
 
-/// Whether a step with `n` active rays should fork: it is in the fork band, the copy budget
-/// allows it, and some thread is idle (no thread is already waiting for a fork's second
-/// half), so that the fork is taken at once rather than run later by this thread.
+/// Whether a step with `n` active rays should fork: it is in the fork band and some thread
+/// is idle (counting the forks whose second half nobody has started), so that the fork is
+/// taken at once rather than run later by this thread. The fork itself checks the budget.
 pub fn should_fork(ctx: &Ctx, n: usize) -> bool {
     let p = &ctx.opts.parallel;
-    n >= p.fork_min_rays
-        && n < ctx.data_min_rays
-        && ctx.budget.load(Relaxed) >= n as isize
-        && ctx.workers.idle()
+    n >= p.fork_min_rays && n < ctx.data_min_rays && ctx.workers.idle()
 }
 
 /// Takes `n` records from the fork budget, or says there is not enough.
@@ -486,12 +483,21 @@ fn slot_median(rays: &[RayRec]) -> u32 {
     *s.select_nth_unstable(mid).1
 }
 
-/// A ray-split fork: the step's rays are split into two halves that are coherent (by slot
-/// index: for camera rays, image bands), and the same node is traversed for each half at
-/// once — the first half with this task's table and id array, the second with a local
-/// table and a copy of the ids. Each half keeps its own front-to-back culling (a
-/// triangle-split fork loses it for the far child); the price is that both halves
-/// partition the node's triangles. Returns false (nothing done) when the rays do not split.
+/// Adds `delta` (mod 2^31) to the slot index of every record.
+fn rebase(rays: &mut [RayRec], delta: u32) {
+    for r in rays {
+        r.set_index((r.index() as u32).wrapping_add(delta) & SLOT_MASK);
+    }
+}
+
+/// A ray-split fork: the step's rays are split at a slot index into two halves that are
+/// coherent (for camera rays, image bands), and the same node is traversed for both at once.
+/// Since the halves hold the slots below and above the split, the hit table splits there
+/// too, into two disjoint slices: nothing is copied but the node's id array (each half
+/// partitions the node's triangles its own way); the second half's records count their
+/// slots from the split while it runs. Each half keeps its own front-to-back culling,
+/// which a triangle-split fork loses for the far child. Returns false (nothing done) when
+/// the rays do not split.
 pub fn fork_rays<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
@@ -501,7 +507,7 @@ pub fn fork_rays<T: LeafTest>(
     depth: u32,
 ) -> bool {
     let n = rays.len();
-    let cost = n / 2 + ids.len() / 8;
+    let cost = ids.len() / 13 + 1;
     if !reserve(ctx, cost) {
         return false;
     }
@@ -514,68 +520,48 @@ pub fn fork_rays<T: LeafTest>(
             h += 1;
         }
     }
-    if let Some(s) = ctx.stats {
-        lap(&s.merge_ns, t0);
-    }
     if h == 0 || h == n {
         release(ctx, cost);
         return false;
     }
     let (r1, r2) = rays.split_at_mut(h);
-    let ids_copy = ids.to_vec();
-    let ptmin = table.tmin;
-    let (_, b) = join_tracked(
+    rebase(r2, pivot.wrapping_neg());
+    let mut ids2 = ids.to_vec();
+    let (hits1, hits2) = table.hits.split_at_mut(pivot as usize);
+    let (tmin1, tmin2) = if table.tmin.is_empty() {
+        (table.tmin, table.tmin)
+    } else {
+        table.tmin.split_at(pivot as usize)
+    };
+    if let Some(s) = ctx.stats {
+        lap(&s.merge_ns, t0);
+    }
+    let (_, migrated) = join_tracked(
         ctx,
-        || step::<T>(ctx, r1, table, ids, node, depth),
-        |migrated| {
-            if !migrated {
-                return None;
-            }
-            let mut ids = ids_copy;
-            // Local slots for the second half; `link` remembers the table's.
-            let mut link = Vec::with_capacity(r2.len());
-            let mut hits = Vec::with_capacity(r2.len());
-            let mut tmin = Vec::new();
-            for r in r2.iter_mut() {
-                link.push(r.index() as u32);
-                hits.push(open_slot(r.tmax()));
-                if !ptmin.is_empty() {
-                    tmin.push(ptmin[r.index()]);
-                }
-                r.set_index(hits.len() as u32 - 1);
-            }
-            let mut local = Table {
-                hits: &mut hits,
-                tmin: &tmin,
+        || {
+            let mut t = Table {
+                hits: hits1,
+                tmin: tmin1,
             };
-            step::<T>(ctx, r2, &mut local, &mut ids, node, depth);
-            for r in r2.iter_mut() {
-                r.set_index(link[r.index()]);
-            }
-            Some((hits, link))
+            step::<T>(ctx, r1, &mut t, ids, node, depth);
+        },
+        |migrated| {
+            let mut t = Table {
+                hits: hits2,
+                tmin: tmin2,
+            };
+            step::<T>(ctx, &mut *r2, &mut t, &mut ids2, node, depth);
+            migrated
         },
     );
-    let t0 = ctx.clock();
-    match b {
-        Some((hits, link)) => {
-            if let Some(s) = ctx.stats {
-                Stats::add(&s.forks_stolen, 1);
-            }
-            for (h, &slot) in hits.iter().zip(&link) {
-                if h.prim != u32::MAX {
-                    merge_slot(&mut table.hits[slot as usize], *h, ctx.any);
-                }
-            }
-            if let Some(s) = ctx.stats {
-                lap(&s.merge_ns, t0);
-            }
-        }
-        None => {
-            if let Some(s) = ctx.stats {
-                Stats::add(&s.forks_local, 1);
-            }
-            step::<T>(ctx, r2, table, ids, node, depth);
-        }
+    rebase(r2, pivot);
+    if let Some(s) = ctx.stats {
+        let c = if migrated {
+            &s.forks_stolen
+        } else {
+            &s.forks_local
+        };
+        Stats::add(c, 1);
     }
     release(ctx, cost);
     true

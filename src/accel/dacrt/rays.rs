@@ -98,9 +98,19 @@ impl RayRec {
 /// whose triangle `brute` would report at exactly the current `tmax` (ties decide by id).
 pub(super) const T_SLACK: f32 = 1.0 / 4096.0;
 
-/// A box prepared for filtering: grown by a hair on every side so that a ray lying exactly in
-/// a face plane (an axis-parallel ray through a triangle's edge) never produces `0 × ∞`,
-/// and so that rounding in the slab distances cannot drop a ray that touches the box.
+/// A box prepared for filtering, grown on every side by `2^-12` of its largest extent plus
+/// `2^-20` of its coordinates' magnitude (and never by less than the smallest normal
+/// float), for three reasons:
+///
+/// - a ray lying exactly in a face plane (an axis-parallel ray through a triangle's edge)
+///   must not produce `0 × ∞` in the slab test;
+/// - rounding in the slab distances must not drop a ray that touches the box;
+/// - the triangle test's `t` has an absolute error that grows with the triangle's size,
+///   not with `t`: a huge triangle (here 10⁴ long) met a unit away can be reported by
+///   `brute` at a `t` whose point lies visibly outside the triangle's own box (a flat box
+///   at `y = 0` reported at `y = −0.15`). Culling that ray by `tmax` against the exact box
+///   would then disagree with `brute`; the margin, proportional to the box's extent, keeps
+///   such hits inside. It costs nothing measurable in culling.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FilterBox {
     /// Lower corner.
@@ -116,9 +126,11 @@ impl FilterBox {
             min: b.min,
             max: b.max,
         };
+        let e = b.extent();
+        let size = e[0].max(e[1]).max(e[2]) * (1.0 / 4096.0);
         for k in 0..3 {
             let m = b.min[k].abs().max(b.max[k].abs());
-            let eps = m * (1.0 / (1 << 20) as f32) + f32::MIN_POSITIVE;
+            let eps = size + m * (1.0 / (1 << 20) as f32) + f32::MIN_POSITIVE;
             f.min[k] = b.min[k] - eps;
             f.max[k] = b.max[k] + eps;
         }
@@ -232,6 +244,122 @@ pub fn filter(rays: &mut [RayRec], b: &FilterBox) -> usize {
     simd::dispatch(simd::selected(), Filter { rays, b })
 }
 
+/// [`filter`] towards the back: the rays that enter `b` move to the *end* of `rays`;
+/// returns how many.
+struct FilterBack<'a> {
+    rays: &'a mut [RayRec],
+    b: &'a FilterBox,
+}
+
+impl Kernel for FilterBack<'_> {
+    type Output = usize;
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> usize {
+        let tr = Transposer::new(s);
+        let bx = Box8::new(s, self.b);
+        let rays = self.rays;
+        let n = rays.len();
+        let mut w = n;
+        let mut end = n;
+        while end > 0 {
+            let len = end.min(8);
+            let base = end - len;
+            let r = Rays8::load(s, &tr, &rays[base..end]);
+            let mut bits = bx.test(&r).0.bitmask() & ((1u32 << len) - 1);
+            if bits == 0xFF && w == end {
+                w -= 8;
+            } else {
+                while bits != 0 {
+                    let lane = 31 - bits.leading_zeros() as usize;
+                    bits &= !(1 << lane);
+                    w -= 1;
+                    let i = base + lane;
+                    if i != w {
+                        rays.swap(w, i);
+                    }
+                }
+            }
+            end = base;
+        }
+        n - w
+    }
+}
+
+/// Filters `rays` in place against `b`, moving the rays that enter it to the *end*;
+/// returns how many.
+pub fn filter_back(rays: &mut [RayRec], b: &FilterBox) -> usize {
+    simd::dispatch(simd::selected(), FilterBack { rays, b })
+}
+
+/// Both children's filtering in one pass: a three-way partition.
+struct Filter2<'a> {
+    rays: &'a mut [RayRec],
+    first: &'a FilterBox,
+    second: &'a FilterBox,
+}
+
+impl Kernel for Filter2<'_> {
+    type Output = (usize, usize);
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> (usize, usize) {
+        let tr = Transposer::new(s);
+        let (b1, b2) = (Box8::new(s, self.first), Box8::new(s, self.second));
+        let rays = self.rays;
+        let n = rays.len();
+        // [0, a): enter the first box; [a, b): only the second; [b, i): neither.
+        let (mut a, mut b) = (0, 0);
+        let mut base = 0;
+        while base < n {
+            let len = (n - base).min(8);
+            let r = Rays8::load(s, &tr, &rays[base..base + len]);
+            let valid = (1u32 << len) - 1;
+            let one = b1.test(&r).0.bitmask() & valid;
+            let two = b2.test(&r).0.bitmask() & valid & !one;
+            if one == 0xFF && a == base {
+                a += 8;
+                b += 8;
+            } else {
+                let mut bits = one | two;
+                while bits != 0 {
+                    let lane = bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let i = base + lane;
+                    if one >> lane & 1 == 1 {
+                        // i -> a, a -> b, b -> i (a <= b <= i): one three-cycle.
+                        let r = rays[i];
+                        rays[i] = rays[b];
+                        rays[b] = rays[a];
+                        rays[a] = r;
+                        a += 1;
+                    } else if i != b {
+                        rays.swap(b, i);
+                    }
+                    b += 1;
+                }
+            }
+            base += len;
+        }
+        (a, b - a)
+    }
+}
+
+/// Filters `rays` in place against two boxes at once: the rays that enter `first` move to
+/// the front, those that enter only `second` right after them. Returns both counts. This
+/// is what lets the second child be filtered, after the first child's recursion, only
+/// among the first child's rays (the others' `tmax` has not changed).
+pub fn filter2(rays: &mut [RayRec], first: &FilterBox, second: &FilterBox) -> (usize, usize) {
+    simd::dispatch(
+        simd::selected(),
+        Filter2 {
+            rays,
+            first,
+            second,
+        },
+    )
+}
+
 /// Appends the rays of `rays` that enter `b` to `out`, each with its hit slot renumbered to
 /// the next slot of a task-local table; `link` receives, per copied ray, its position in
 /// `rays` (the merge after the task writes back through it).
@@ -332,6 +460,21 @@ mod tests {
         let mut out = Vec::new();
         let mut link = Vec::new();
         filter_copy(&rays, &b, &mut out, &mut link);
+        // Towards the back.
+        let m = filter_back(&mut rays, &b);
+        assert_eq!(m, 7);
+        let mut back: Vec<u32> = rays[21 - m..].iter().map(|r| r.slot()).collect();
+        back.sort();
+        assert_eq!(back, vec![0, 3, 6, 9, 12, 15, 18]);
+        // Two boxes: y = 0.5 rays enter the unit box, y = 3 rays enter the second.
+        let b2 = FilterBox::new(&Aabb {
+            min: [0.0, 2.5, 0.0],
+            max: [1.0, 3.5, 1.0],
+        });
+        let (a, only2) = filter2(&mut rays, &b, &b2);
+        assert_eq!((a, only2), (7, 14));
+        assert!(rays[..7].iter().all(|r| r.slot() % 3 == 0));
+        assert!(rays[7..].iter().all(|r| r.slot() % 3 != 0));
         assert_eq!(out.len(), 7);
         assert!(out.iter().enumerate().all(|(i, r)| r.slot() == i as u32));
         assert!(link.iter().all(|&p| (p as usize) < n));

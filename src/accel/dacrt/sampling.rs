@@ -143,15 +143,31 @@ pub fn sample_pair(samples: &[RayRec], left: &Aabb, right: &Aabb) -> Sampled {
 
 /// Nabata's sampled cost (eq. 2): the plane minimising `α_L·N_L + α_R·N_R`, where `α` is the
 /// fraction of sample rays entering the candidate box; with what the samples said about it.
-pub fn sampled_cost(cands: &[Candidate], samples: &[RayRec]) -> Option<(usize, Sampled)> {
+///
+/// With `prior > 0`, `α` is smoothed towards the surface-area ratio `p` of the SAH as if
+/// `prior` more rays had been sampled from SAH's uniform distribution:
+/// `α = (hits + prior·p) / (samples + prior)`. With 100 samples, many candidates get
+/// `α = 1` on both sides (every sample ray enters both boxes, as when the camera is inside
+/// them) and eq. 2 then cannot tell them apart at all; the prior breaks such ties by area.
+/// `prior = 0` is the paper's cost.
+pub fn sampled_cost(
+    cands: &[Candidate],
+    samples: &[RayRec],
+    parent: &Aabb,
+    prior: f32,
+) -> Option<(usize, Sampled)> {
     let pairs: Vec<(Aabb, Aabb)> = cands.iter().map(|c| (c.left, c.right)).collect();
     let sampled = sample_pairs(samples, &pairs);
+    let pa = parent.area().max(f32::MIN_POSITIVE);
+    let ns = samples.len() as f32;
+    let alpha = |hits: u32, b: &Aabb| (hits as f32 + prior * (b.area() / pa)) / (ns + prior);
     let mut best: Option<(usize, f32, Sampled)> = None;
     for (j, (c, s)) in cands.iter().zip(sampled).enumerate() {
         if c.n_left == 0 || c.n_right == 0 {
             continue;
         }
-        let cost = s.hits_left as f32 * c.n_left as f32 + s.hits_right as f32 * c.n_right as f32;
+        let cost = alpha(s.hits_left, &c.left) * c.n_left as f32
+            + alpha(s.hits_right, &c.right) * c.n_right as f32;
         if best.as_ref().map_or(true, |&(_, b, _)| cost < b) {
             best = Some((j, cost, s));
         }

@@ -14,6 +14,7 @@
 use crate::geometry::Aabb;
 
 use super::tris::TriBox;
+use crate::simd::{self, FloatV, Kernel, Simd};
 
 /// Number of bins of the binned splits (Áfra: 32).
 pub const BINS: usize = 32;
@@ -115,6 +116,83 @@ impl Acc {
     }
 }
 
+/// [`Acc`] in 4-wide registers: a triangle box is one vector per corner.
+struct AccV<S: Simd> {
+    lo: S::F4,
+    hi: S::F4,
+    clo: S::F4,
+    chi: S::F4,
+}
+
+impl<S: Simd> AccV<S> {
+    #[inline(always)]
+    fn load(s: S, a: &Acc) -> Self {
+        AccV {
+            lo: s.load_f4(&a.lo),
+            hi: s.load_f4(&a.hi),
+            clo: s.load_f4(&a.clo),
+            chi: s.load_f4(&a.chi),
+        }
+    }
+
+    /// Adds one box: the same arithmetic as [`Acc::add`] (the centroid is
+    /// `0.5·min + 0.5·max`, and coordinates are never NaN, so the layer's min/max agree
+    /// with `f32::min`/`max`).
+    #[inline(always)]
+    fn add(&mut self, s: S, half: S::F4, b: &TriBox) {
+        let (mn, mx) = (s.load_f4(&b.min), s.load_f4(&b.max));
+        let c = half * mn + half * mx;
+        self.lo = self.lo.min(mn);
+        self.hi = self.hi.max(mx);
+        self.clo = self.clo.min(c);
+        self.chi = self.chi.max(c);
+    }
+
+    #[inline(always)]
+    fn store(&self) -> Acc {
+        let a = |v: S::F4| -> [f32; 4] { v.to_array() };
+        Acc {
+            lo: a(self.lo),
+            hi: a(self.hi),
+            clo: a(self.clo),
+            chi: a(self.chi),
+        }
+    }
+}
+
+/// The partition as a SIMD kernel (the box accumulation is what is vectorised).
+struct PartitionK<'a, F> {
+    boxes: &'a [TriBox],
+    ids: &'a mut [u32],
+    left: F,
+}
+
+impl<F: Fn(&TriBox) -> bool> Kernel for PartitionK<'_, F> {
+    type Output = (usize, Acc, Acc);
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> Self::Output {
+        let half = s.splat_f4(0.5);
+        let mut l = AccV::load(s, &Acc::EMPTY);
+        let mut r = AccV::load(s, &Acc::EMPTY);
+        let ids = self.ids;
+        let mut w = 0;
+        for i in 0..ids.len() {
+            let id = ids[i];
+            let b = &self.boxes[id as usize];
+            if (self.left)(b) {
+                l.add(s, half, b);
+                ids[i] = ids[w];
+                ids[w] = id;
+                w += 1;
+            } else {
+                r.add(s, half, b);
+            }
+        }
+        (w, l.store(), r.store())
+    }
+}
+
 /// Partitions `ids` in place by `left(box)` (those first), accumulating both sides' boxes;
 /// returns the size of the left side and both accumulators.
 #[inline(always)]
@@ -123,21 +201,46 @@ pub fn partition_acc(
     ids: &mut [u32],
     left: impl Fn(&TriBox) -> bool,
 ) -> (usize, Acc, Acc) {
-    let mut l = Acc::EMPTY;
-    let mut r = Acc::EMPTY;
-    let mut w = 0;
-    for i in 0..ids.len() {
-        let id = ids[i];
-        let b = &boxes[id as usize];
-        if left(b) {
-            l.add(b);
-            ids.swap(w, i);
-            w += 1;
-        } else {
-            r.add(b);
+    simd::dispatch(simd::selected(), PartitionK { boxes, ids, left })
+}
+
+/// Filling bins as a SIMD kernel.
+struct FillK<'a> {
+    bins: &'a mut Bins,
+    boxes: &'a [TriBox],
+    ids: &'a [u32],
+}
+
+impl Kernel for FillK<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) {
+        let half = s.splat_f4(0.5);
+        let bins = self.bins;
+        let sized = bins.big_thr.is_finite();
+        let mut big = AccV::load(s, &bins.big.0);
+        let mut small = AccV::load(s, &bins.small.0);
+        for &id in self.ids {
+            let b = &self.boxes[id as usize];
+            let k = bins.bin(b);
+            let mut a = AccV::load(s, &bins.acc[k]);
+            a.add(s, half, b);
+            bins.acc[k] = a.store();
+            bins.count[k] += 1;
+            if sized {
+                if bins.is_big(b) {
+                    big.add(s, half, b);
+                    bins.big.1 += 1;
+                } else {
+                    small.add(s, half, b);
+                    bins.small.1 += 1;
+                }
+            }
         }
+        bins.big.0 = big.store();
+        bins.small.0 = small.store();
     }
-    (w, l, r)
 }
 
 #[inline(always)]
@@ -250,22 +353,14 @@ impl Bins {
 
     /// Adds the triangles `ids`.
     pub fn fill(&mut self, boxes: &[TriBox], ids: &[u32]) {
-        let sized = self.big_thr.is_finite();
-        for &id in ids {
-            let b = &boxes[id as usize];
-            let k = self.bin(b);
-            self.acc[k].add(b);
-            self.count[k] += 1;
-            if sized {
-                let side = if self.is_big(b) {
-                    &mut self.big
-                } else {
-                    &mut self.small
-                };
-                side.0.add(b);
-                side.1 += 1;
-            }
-        }
+        simd::dispatch(
+            simd::selected(),
+            FillK {
+                bins: self,
+                boxes,
+                ids,
+            },
+        );
     }
 
     /// Adds another binning of the same node.

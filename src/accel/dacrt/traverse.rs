@@ -15,7 +15,7 @@ use crate::geometry::Aabb;
 use super::leaf::{leaf, LeafTest, Table};
 use super::options::{DacrtOptions, ForkSplit};
 use super::parallel;
-use super::rays::{filter, FilterBox, RayRec};
+use super::rays::{filter, filter2, filter_back, FilterBox, RayRec};
 use super::sampling::{sample_pair, sampled_cost, Sampled};
 use super::split::{middle, sah, split_axis, Bins, Candidate, Node, Parts, CANDIDATES};
 use super::stats::{lap, Stats};
@@ -130,8 +130,58 @@ pub fn step<T: LeafTest>(
     {
         return parallel::fork_tris::<T>(ctx, rays, table, first, second, depth);
     }
-    visit::<T>(ctx, rays, table, first, depth);
-    visit::<T>(ctx, rays, table, second, depth);
+    let data_parallel = ctx.parallel && rays.len() >= ctx.data_min_rays;
+    if !o.two_box || first.skip || second.skip || data_parallel {
+        visit::<T>(ctx, rays, table, first, depth);
+        visit::<T>(ctx, rays, table, second, depth);
+        return;
+    }
+    // Both boxes in one pass: [enter the first | enter only the second | neither]. After
+    // the first child, only its rays can have changed `tmax`, so only they are filtered
+    // again for the second box, towards the back of their range, which makes them
+    // adjacent to the rays that enter only the second box.
+    let (b1, b2) = (
+        FilterBox::new(&first.node.bounds),
+        FilterBox::new(&second.node.bounds),
+    );
+    let t0 = ctx.clock();
+    let n = rays.len();
+    let (n1, k2) = filter2(rays, &b1, &b2);
+    if let Some(s) = ctx.stats {
+        Stats::add(&s.box_tests, 2 * n as u64);
+        lap(&s.filter_ns, t0);
+    }
+    if n1 > 0 {
+        step::<T>(
+            ctx,
+            &mut rays[..n1],
+            table,
+            first.ids,
+            &first.node,
+            depth + 1,
+        );
+    }
+    let t0 = ctx.clock();
+    let m = if n1 > 0 {
+        filter_back(&mut rays[..n1], &b2)
+    } else {
+        0
+    };
+    if let Some(s) = ctx.stats {
+        Stats::add(&s.box_tests, n1 as u64);
+        lap(&s.filter_ns, t0);
+    }
+    let (lo, hi) = (n1 - m, n1 + k2);
+    if hi > lo {
+        step::<T>(
+            ctx,
+            &mut rays[lo..hi],
+            table,
+            second.ids,
+            &second.node,
+            depth + 1,
+        );
+    }
 }
 
 /// Filters `rays` for `child` (unless it skips) and recurses on the active prefix.
@@ -247,7 +297,7 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         let per = CANDIDATES;
         let cands: Vec<Candidate> = binned.iter().flat_map(|b| b.candidates()).collect();
         let j = if ns > 0 && s.cost {
-            let (j, si) = sampled_cost(&cands, samples)?;
+            let (j, si) = sampled_cost(&cands, samples, &node.bounds, s.prior)?;
             info = Some(si);
             j
         } else {
