@@ -8,6 +8,7 @@
 //! multi-threaded, the median of several runs is reported, and its hits are checked against
 //! a reference.
 
+mod dynamic;
 mod raysets;
 mod report;
 mod view;
@@ -20,8 +21,9 @@ use serde::Serialize;
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::geometry::Hit;
 pub use crate::render::camera::CameraChoice;
+pub use dynamic::{DynamicConfig, DynamicReport, DynamicScene, FrameSeries, Motion};
 pub use raysets::{RaySet, SetKind};
-pub use report::{render_csv, render_table};
+pub use report::{render_csv, render_dynamic_table, render_table};
 pub use view::{View, ViewKind};
 
 /// Errors of a benchmark run.
@@ -256,6 +258,11 @@ fn auto_reference(triangles: usize, rays_per_set: usize) -> AccelKind {
     } else {
         AccelKind::Embree
     }
+}
+
+/// Runs the dynamic-geometry benchmark (`rayd bench --frames`); progress goes to stderr.
+pub fn run_dynamic(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
+    dynamic::run(config)
 }
 
 /// Runs the benchmark; progress goes to stderr.
