@@ -5,6 +5,7 @@
 //! and made by [`build`]. They parallelise on the rayon pool they are called in, so the
 //! caller bounds the threads by installing a pool.
 
+pub mod auto;
 pub mod brute;
 pub mod bvh;
 pub mod dacrt;
@@ -74,11 +75,11 @@ impl AccelKind {
         self != AccelKind::Embree || cfg!(feature = "embree")
     }
 
-    /// What `auto` becomes for a job of `rays` rays over `triangles` triangles: `mbvh8`,
-    /// the fastest core on incoherent and coherent rays alike (until DACRT exists).
-    pub fn resolve(self, _rays: usize, _triangles: usize) -> AccelKind {
+    /// What this kind runs as for `job`: `auto` becomes the accelerator its cost model
+    /// expects to finish first ([`auto::choose`]); every other kind is itself.
+    pub fn resolve(self, job: &auto::Job) -> AccelKind {
         match self {
-            AccelKind::Auto => AccelKind::Mbvh8,
+            AccelKind::Auto => auto::choose(job),
             k => k,
         }
     }

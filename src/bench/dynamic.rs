@@ -205,10 +205,7 @@ fn frames_of(
             }
             out.push(s.triangles);
         }
-        return Ok((
-            out,
-            format!("animation, {n} frames over {duration:.3} s"),
-        ));
+        return Ok((out, format!("animation, {n} frames over {duration:.3} s")));
     }
     let b = scene
         .bounds()

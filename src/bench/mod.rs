@@ -343,11 +343,18 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 results: Vec::new(),
             };
             let rays_total: usize = sets.iter().map(|s| s.rays.len()).sum();
-            for &kind in &config.accels {
-                let kind = kind.resolve(rays_total, view.triangles.len());
+            for &asked in &config.accels {
                 for &threads in &config.threads {
                     let p = pool(threads)?;
                     let threads = p.current_num_threads();
+                    let kind = asked.resolve(&crate::accel::auto::Job {
+                        rays: rays_total,
+                        batches: sets.len(),
+                        triangles: view.triangles.len(),
+                        threads,
+                        quality: config.build,
+                        geometry: crate::accel::auto::Geometry::New,
+                    });
                     let options = BuildOptions { threads, ..options };
                     let mut build_times = Vec::new();
                     let mut accel = None;

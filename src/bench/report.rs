@@ -127,9 +127,9 @@ pub fn render_dynamic_table(report: &DynamicReport) -> String {
             }
         }
         let find = |a: &str, m: &str, t: usize, set: &str, r: usize| {
-            sc.series
-                .iter()
-                .find(|f| f.accel == a && f.mode == m && f.threads == t && f.set == set && f.rays == r)
+            sc.series.iter().find(|f| {
+                f.accel == a && f.mode == m && f.threads == t && f.set == set && f.rays == r
+            })
         };
         for set in &sets {
             for &t in &threads {
@@ -190,7 +190,9 @@ pub fn render_dynamic_table(report: &DynamicReport) -> String {
             let pairs: Vec<(&FrameSeries, &FrameSeries)> = strategies
                 .iter()
                 .filter(|(_, m)| *m == "refit")
-                .filter_map(|&(a, _)| Some((find(a, "rebuild", t, set, r)?, find(a, "refit", t, set, r)?)))
+                .filter_map(|&(a, _)| {
+                    Some((find(a, "rebuild", t, set, r)?, find(a, "refit", t, set, r)?))
+                })
                 .collect();
             if pairs.is_empty() {
                 continue;
