@@ -22,6 +22,7 @@ use serde::Serialize;
 use super::raysets::{make_sets, RaySet, SetKind};
 use super::view::View;
 use super::{median, pool, BenchError, CameraChoice, ViewKind};
+use crate::accel::auto::{self, Geometry, Job};
 use crate::accel::{self, AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::formats::{load_scene, LoadOptions};
 use crate::geometry::{Aabb, Hit, Triangle};
@@ -128,6 +129,113 @@ pub struct DynamicScene {
     pub frames: usize,
     /// Every series.
     pub series: Vec<FrameSeries>,
+    /// `auto`'s pick for every measured situation, against the fastest measured one.
+    pub auto: Vec<AutoPick>,
+}
+
+/// What `auto` would have run in one measured situation, and what that cost.
+#[derive(Clone, Debug, Serialize)]
+pub struct AutoPick {
+    /// Ray set.
+    pub set: String,
+    /// Threads.
+    pub threads: usize,
+    /// Rays per frame.
+    pub rays: usize,
+    /// `new` (every frame builds from nothing) or `refittable` (the last frame's structure
+    /// may be refitted).
+    pub geometry: String,
+    /// `auto`'s choice, as `accel mode`.
+    pub picked: String,
+    /// The fastest measured candidate.
+    pub fastest: String,
+    /// Median frame seconds of the pick.
+    pub picked_seconds: f64,
+    /// Median frame seconds of the fastest.
+    pub fastest_seconds: f64,
+}
+
+/// `auto`'s candidates in a situation: our cores' strategies that apply (Embree is a peer,
+/// never picked), as (accel, mode) of the measured series.
+fn candidates(refittable: bool) -> &'static [(&'static str, &'static str)] {
+    if refittable {
+        &[
+            ("mbvh8", "refit"),
+            ("dacrt", "update"),
+            ("dacrt-sampled", "update"),
+            ("brute", "update"),
+        ]
+    } else {
+        &[
+            ("mbvh8", "rebuild"),
+            ("dacrt", "update"),
+            ("dacrt-sampled", "update"),
+            ("brute", "update"),
+        ]
+    }
+}
+
+/// Scores `auto` on every (set, threads, rays, geometry) of `series` where its pick and at
+/// least one other candidate were measured.
+fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -> Vec<AutoPick> {
+    let mut out = Vec::new();
+    let mut cells: Vec<(String, usize, usize)> = Vec::new();
+    for f in series {
+        let c = (f.set.clone(), f.threads, f.rays);
+        if !cells.contains(&c) {
+            cells.push(c);
+        }
+    }
+    for (set, threads, rays) in cells {
+        for refittable in [false, true] {
+            let measured: Vec<&FrameSeries> = candidates(refittable)
+                .iter()
+                .filter_map(|&(a, m)| {
+                    series.iter().find(|f| {
+                        f.accel == a
+                            && f.mode == m
+                            && f.set == set
+                            && f.threads == threads
+                            && f.rays == rays
+                    })
+                })
+                .collect();
+            if measured.len() < 2 {
+                continue;
+            }
+            let job = Job {
+                rays,
+                batches: 1,
+                triangles: triangles + 12,
+                threads,
+                quality,
+                geometry: if refittable {
+                    Geometry::Refittable
+                } else {
+                    Geometry::New
+                },
+            };
+            let pick = auto::choose(&job);
+            let Some(p) = measured.iter().find(|f| f.accel == pick.name()) else {
+                continue;
+            };
+            let best = measured
+                .iter()
+                .min_by(|a, b| a.median_frame_seconds.total_cmp(&b.median_frame_seconds))
+                .expect("two or more");
+            out.push(AutoPick {
+                set: set.clone(),
+                threads,
+                rays,
+                geometry: if refittable { "refittable" } else { "new" }.into(),
+                picked: format!("{} {}", p.accel, p.mode),
+                fastest: format!("{} {}", best.accel, best.mode),
+                picked_seconds: p.median_frame_seconds,
+                fastest_seconds: best.median_frame_seconds,
+            });
+        }
+    }
+    out
 }
 
 /// The whole run.
@@ -327,6 +435,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
             motion,
             frames: frames.len(),
             series: Vec::new(),
+            auto: Vec::new(),
         };
         let first = Scene {
             triangles: frames[0].clone(),
@@ -461,6 +570,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                 }
             }
         }
+        out.auto = score_auto(&out.series, out.triangles, config.build);
         report.scenes.push(out);
     }
     Ok(report)

@@ -21,7 +21,7 @@ use serde::Serialize;
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::geometry::Hit;
 pub use crate::render::camera::CameraChoice;
-pub use dynamic::{DynamicConfig, DynamicReport, DynamicScene, FrameSeries, Motion};
+pub use dynamic::{AutoPick, DynamicConfig, DynamicReport, DynamicScene, FrameSeries, Motion};
 pub use raysets::{RaySet, SetKind};
 pub use report::{render_csv, render_dynamic_table, render_table};
 pub use view::{View, ViewKind};

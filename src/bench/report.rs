@@ -182,6 +182,32 @@ pub fn render_dynamic_table(report: &DynamicReport) -> String {
                 }
             }
         }
+        if !sc.auto.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nauto (picks among our cores by its cost model; frame ms of its pick and of the fastest)\n"
+            );
+            let _ = writeln!(
+                s,
+                "| set | threads | rays | geometry | auto picks | ms | fastest | ms | cost |"
+            );
+            let _ = writeln!(s, "|---|---:|---:|---|---|---:|---|---:|---:|");
+            for p in &sc.auto {
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} | {:.1} | {} | {:.1} | {:.2}× |",
+                    p.set,
+                    p.threads,
+                    p.rays,
+                    p.geometry,
+                    p.picked,
+                    p.picked_seconds * 1e3,
+                    p.fastest,
+                    p.fastest_seconds * 1e3,
+                    p.picked_seconds / p.fastest_seconds
+                );
+            }
+        }
         // Refit against rebuild, frame by frame.
         let (Some(&t), Some(&r)) = (threads.first(), rays.iter().max()) else {
             continue;
@@ -220,6 +246,26 @@ pub fn render_dynamic_table(report: &DynamicReport) -> String {
                 let _ = writeln!(s);
             }
         }
+    }
+    let picks: Vec<&super::AutoPick> = report.scenes.iter().flat_map(|sc| &sc.auto).collect();
+    if !picks.is_empty() {
+        let right = picks.iter().filter(|p| p.picked == p.fastest).count();
+        let costs: Vec<f64> = picks
+            .iter()
+            .filter(|p| p.picked != p.fastest)
+            .map(|p| p.picked_seconds / p.fastest_seconds)
+            .collect();
+        let worst = costs.iter().copied().fold(1.0f64, f64::max);
+        let mean = if costs.is_empty() {
+            1.0
+        } else {
+            costs.iter().sum::<f64>() / costs.len() as f64
+        };
+        let _ = writeln!(
+            s,
+            "\nauto picked the fastest of its candidates in {right} of {} situations; its wrong picks took {mean:.2}× the fastest's frame time on average, {worst:.2}× at worst",
+            picks.len()
+        );
     }
     s
 }
