@@ -216,14 +216,6 @@ pub trait Intersector: Send + Sync {
         }
     }
 
-    /// TEMPORARY (replaced by the refit branch).
-    fn refit(&mut self, _triangles: &[Triangle]) -> Result<(), AccelError> {
-        Err(AccelError::Backend {
-            accel: self.name(),
-            message: "cannot refit".into(),
-        })
-    }
-
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
 
