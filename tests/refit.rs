@@ -673,3 +673,88 @@ fn animated_shared_cesium_man_refits_agree_with_brute() {
         &[0.5, 1.2, 1.9],
     );
 }
+
+/// Build and refit times on a shared scene (the dragon by default), same run, 1 and 2
+/// threads; prints a table. Wall-clock figures: compare them only within one run.
+///
+/// ```text
+/// RAYD_REFIT_SCENE=path/to/dragon.glb cargo test --release --features embree \
+///     --test refit -- --ignored refit_timings --nocapture
+/// ```
+#[test]
+#[ignore]
+fn refit_timings() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let path = std::env::var("RAYD_REFIT_SCENE").map_or_else(
+        |_| dir.join("../shared/scenes/dragon-100k.from-ply.glb"),
+        std::path::PathBuf::from,
+    );
+    if !path.exists() {
+        eprintln!("skipping: {} not present", path.display());
+        return;
+    }
+    let a = rayd::formats::load_scene(&path, &Default::default())
+        .expect("loads")
+        .triangles;
+    let mut rng = Rng(5);
+    let b: Vec<Triangle> = a
+        .iter()
+        .map(|t| {
+            let m = Triangle {
+                v: t.v.map(|v| add(v, rng.vec(1e-3))),
+            };
+            if traceable(&m) == traceable(t) {
+                m
+            } else {
+                *t
+            }
+        })
+        .collect();
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    eprintln!("{} triangles: {}", a.len(), path.display());
+    eprintln!("accel       quality threads  build ms  refit ms  ratio");
+    for threads in [1, 2] {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .expect("pool");
+        pool.install(|| {
+            for kind in all_kinds() {
+                if kind == AccelKind::Brute || kind == AccelKind::DacrtSampled {
+                    continue;
+                }
+                let o = BuildOptions {
+                    quality: BuildQuality::Sah,
+                    precision: Precision::Watertight,
+                    threads,
+                };
+                let mut builds = Vec::new();
+                let mut core = None;
+                for _ in 0..3 {
+                    let t0 = std::time::Instant::now();
+                    let c = build(kind, &a, &o).expect("builds");
+                    builds.push(t0.elapsed().as_secs_f64() * 1e3);
+                    core = Some(c);
+                }
+                let mut core = core.expect("built");
+                let mut refits = Vec::new();
+                for i in 0..5 {
+                    let t0 = std::time::Instant::now();
+                    core.refit(if i % 2 == 0 { &b } else { &a })
+                        .expect("refits");
+                    refits.push(t0.elapsed().as_secs_f64() * 1e3);
+                }
+                let (bm, rm) = (median(builds), median(refits));
+                eprintln!(
+                    "{:<11} {:<7} {threads:>7} {bm:>9.2} {rm:>9.2} {:>6.1}",
+                    kind.name(),
+                    o.quality.name(),
+                    bm / rm
+                );
+            }
+        });
+    }
+}
