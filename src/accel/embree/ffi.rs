@@ -66,8 +66,6 @@ pub const RTC_BUILD_QUALITY_LOW: RTCBuildQuality = 0;
 pub const RTC_BUILD_QUALITY_MEDIUM: RTCBuildQuality = 1;
 /// SAH builder with spatial splits.
 pub const RTC_BUILD_QUALITY_HIGH: RTCBuildQuality = 2;
-/// Refits the existing BVH when only the vertex buffer changed (geometries only).
-pub const RTC_BUILD_QUALITY_REFIT: RTCBuildQuality = 3;
 
 /// `enum RTCGeometryType`.
 pub type RTCGeometryType = c_uint;

@@ -54,11 +54,6 @@ pub struct Embree {
     state: Box<DeviceState>,
     /// Triangles given, for the fallback byte estimate and the refit's count check.
     triangles: usize,
-    /// The build quality, which a refit that cannot refit goes back to.
-    quality: ffi::RTCBuildQuality,
-    /// Ids of the triangles that were not traceable (degenerate or non-finite) at the
-    /// last build, ascending: Embree's refit keeps the primitives its build kept.
-    excluded: Vec<u32>,
 }
 
 /// The geometry attached to the scene and the vertex buffer Embree allocated for it.
@@ -379,8 +374,6 @@ impl Embree {
             _device: device,
             state,
             triangles: triangles.len(),
-            quality: q,
-            excluded: untraceable(triangles),
         })
     }
 
@@ -505,12 +498,14 @@ impl Intersector for Embree {
         }
     }
 
-    /// Writes the new positions into Embree's vertex buffer and recommits. With the same
-    /// triangles left out as at the last build, the geometry's build quality is set to
-    /// `RTC_BUILD_QUALITY_REFIT`, so Embree refits its BVH (the first refit after a build
-    /// still builds once, because Embree's refitting builder needs a tree of its own);
-    /// otherwise it is set back to the build's quality and Embree rebuilds. Only another
-    /// triangle count is refused. An Embree failure during the commit is a
+    /// Writes the new positions into Embree's vertex buffer and recommits, which
+    /// rebuilds Embree's BVH at the build's quality; what this saves over a new
+    /// `Embree` is device, scene and buffer setup. Setting the geometry's quality to
+    /// `RTC_BUILD_QUALITY_REFIT` before the commit was tried and measured: on the static
+    /// single-level scene this peer uses, the commit took as long as a build (dragon,
+    /// 100k triangles: 79 ms vs 84 ms), so it is not done; Embree's refitting is meant
+    /// for scenes made with `RTC_SCENE_FLAG_DYNAMIC`, whose different BVH would change
+    /// what the peer traces with. Only another triangle count is refused. An Embree failure during the commit is an
     /// [`AccelError::Backend`] and leaves the scene unusable.
     fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
         if triangles.len() != self.triangles {
@@ -523,27 +518,18 @@ impl Intersector for Embree {
         let Some(mesh) = &self.mesh else {
             return Ok(());
         };
-        let same = crate::accel::bvh::check_refit(&self.excluded, self.triangles, triangles);
-        let quality = if same.is_ok() {
-            ffi::RTC_BUILD_QUALITY_REFIT
-        } else {
-            self.excluded = untraceable(triangles);
-            self.quality
-        };
         let g = mesh.geometry.0.as_ptr();
         // SAFETY: the vertex buffer holds `9·T` f32 (allocated for `3·T` FLOAT3 items by
         // `with_config`) and lives as long as the geometry, which `mesh` holds; `&mut self`
         // means no trace reads the scene meanwhile; `Triangle` is `repr(C)` nine f32 and
         // the count was checked above. The geometry is live, so the calls on it and on
-        // the scene are valid; the commits rebuild or refit and make the scene immutable
-        // again.
+        // the scene are valid; the commits rebuild and make the scene immutable again.
         unsafe {
             std::ptr::copy_nonoverlapping(
                 triangles.as_ptr() as *const f32,
                 mesh.vertices.as_ptr(),
                 triangles.len() * 9,
             );
-            ffi::rtcSetGeometryBuildQuality(g, quality);
             ffi::rtcUpdateGeometryBuffer(g, ffi::RTC_BUFFER_TYPE_VERTEX, 0);
             ffi::rtcCommitGeometry(g);
             ffi::rtcCommitScene(self.scene.0.as_ptr());
@@ -551,13 +537,6 @@ impl Intersector for Embree {
         let device = &self._device;
         pending_error(device, &self.state, "refit (rtcCommitScene)")
     }
-}
-
-/// Ids of the triangles a BVH leaves out (degenerate or non-finite), ascending.
-fn untraceable(triangles: &[Triangle]) -> Vec<u32> {
-    (0..triangles.len() as u32)
-        .filter(|&i| !crate::accel::bvh::is_traceable(&triangles[i as usize]))
-        .collect()
 }
 
 /// Sets MXCSR's flush-to-zero and denormals-are-zero bits for the current thread, as Embree
