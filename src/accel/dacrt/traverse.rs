@@ -345,7 +345,11 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         false
     } else {
         match info {
-            Some(si) if s.order => si.nearer_left >= si.nearer_right,
+            // A tie (typically every sample ray starts inside both boxes, entry 0) says
+            // nothing: the first ray's direction does.
+            Some(si) if s.order && si.nearer_left != si.nearer_right => {
+                si.nearer_left > si.nearer_right
+            }
             _ => afra_first_left(&rays[0], &parts),
         }
     };
