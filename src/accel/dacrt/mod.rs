@@ -122,11 +122,24 @@ impl Dacrt {
         };
         let live = self.tris.live();
         if live > 0 && !rays.is_empty() {
+            let threads = rayon::current_num_threads();
+            let p = &self.options.parallel;
+            let parallel = p.enabled && threads > 1;
+            // With several threads the batch starts as a ray-split fork by index: the two
+            // halves (image bands for camera rays) are filtered against the root box and
+            // traced at once, so that neither the root filter nor the fork's own partition
+            // by slot runs on one thread over all rays. Each half counts its slots from 0.
+            let pivot = if parallel && rays.len() >= 2 * p.fork_min_rays {
+                rays.len() / 2
+            } else {
+                rays.len()
+            };
             let mut recs: Vec<RayRec> = rays
                 .par_iter()
                 .enumerate()
                 .map(|(i, r)| {
-                    let mut rec = RayRec::new(r, i as u32);
+                    let slot = if i < pivot { i } else { i - pivot };
+                    let mut rec = RayRec::new(r, slot as u32);
                     // Empty (or NaN) intervals never hit: such rays start inactive.
                     if !interval_nonempty(r) {
                         rec.set_tmax(f32::NEG_INFINITY);
@@ -134,9 +147,6 @@ impl Dacrt {
                     rec
                 })
                 .collect();
-            let threads = rayon::current_num_threads();
-            let p = &self.options.parallel;
-            let parallel = p.enabled && threads > 1;
             let budget = (p.fork_budget as f64 * rays.len() as f64) as usize;
             let ctx = Ctx {
                 tris: &self.tris,
@@ -153,19 +163,32 @@ impl Dacrt {
                     ForkSplit::Rays => p.data_min_rays,
                 },
             };
-            let root = Node {
-                bounds: self.tris.bounds,
-                cents: self.tris.centroids,
+            let (r1, r2) = recs.split_at_mut(pivot);
+            let (h1, h2) = hits.split_at_mut(pivot);
+            let (t1, t2) = if tmin.is_empty() {
+                (&tmin[..], &tmin[..])
+            } else {
+                tmin.split_at(pivot)
             };
-            let n = ctx.filter(&mut recs, &root.bounds);
-            if n > 0 {
-                let mut ids = vec![0u32; live];
-                self.tris.fill_ids(&mut ids);
-                let mut table = Table {
-                    hits: &mut *hits,
-                    tmin: &tmin,
-                };
-                step::<T>(&ctx, &mut recs[..n], &mut table, &mut ids, &root, 0);
+            if r2.is_empty() {
+                self.root::<T>(&ctx, r1, h1, t1);
+            } else {
+                let (_, migrated) = parallel::join_tracked(
+                    &ctx,
+                    || self.root::<T>(&ctx, r1, h1, t1),
+                    |migrated| {
+                        self.root::<T>(&ctx, r2, h2, t2);
+                        migrated
+                    },
+                );
+                if let Some(s) = &stats {
+                    let c = if migrated {
+                        &s.forks_stolen
+                    } else {
+                        &s.forks_local
+                    };
+                    Stats::add(c, 1);
+                }
             }
         }
         if finish {
@@ -181,6 +204,22 @@ impl Dacrt {
                 "{}",
                 s.summary(self.name, rays.len(), t0.elapsed().as_secs_f64())
             );
+        }
+    }
+
+    /// Filters `recs` against the root box and traces the active ones into `hits` (the
+    /// records' slots index `hits` and `tmin`).
+    fn root<T: LeafTest>(&self, ctx: &Ctx, recs: &mut [RayRec], hits: &mut [Hit], tmin: &[f32]) {
+        let root = Node {
+            bounds: self.tris.bounds,
+            cents: self.tris.centroids,
+        };
+        let n = ctx.filter(recs, &root.bounds);
+        if n > 0 {
+            let mut ids = vec![0u32; self.tris.live()];
+            self.tris.fill_ids(&mut ids);
+            let mut table = Table { hits, tmin };
+            step::<T>(ctx, &mut recs[..n], &mut table, &mut ids, &root, 0);
         }
     }
 

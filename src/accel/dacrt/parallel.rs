@@ -292,7 +292,7 @@ impl Workers {
 
 /// `rayon::join_context` with the bookkeeping of [`Workers`]: the first half continues
 /// this thread's work, the second is pending until it starts (here or on a thief).
-fn join_tracked<RA: Send, RB: Send>(
+pub(super) fn join_tracked<RA: Send, RB: Send>(
     ctx: &Ctx,
     a: impl FnOnce() -> RA + Send,
     b: impl FnOnce(bool) -> RB + Send,

@@ -8,8 +8,9 @@
 //! the per-plane counts stay in vector registers' worth of arrays.
 
 use crate::geometry::Aabb;
-use crate::simd::{self, FloatV, IntV, Kernel, Select, Simd};
+use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
 
+use super::lanes::{Box8, Rays8, Transposer};
 use super::rays::{FilterBox, RayRec, T_SLACK};
 use super::split::Candidate;
 
@@ -63,7 +64,9 @@ impl Pairs {
     }
 }
 
-/// The counting kernel: every sample ray against every pair.
+/// The counting kernel: every sample ray against every pair. Groups of 8 pairs are the
+/// outer loop, so that a group's 12 box vectors and its 4 counters stay in registers while
+/// the sample rays (prepared once: origin, reciprocal direction, far limit) stream past.
 struct Count<'a> {
     pairs: &'a Pairs,
     samples: &'a [RayRec],
@@ -76,43 +79,87 @@ impl Kernel for Count<'_> {
     fn run<S: Simd>(self, s: S) -> Self::Output {
         let groups = self.pairs.lo.len();
         let mut counts = vec![[[0i32; W]; 4]; groups];
+        // The same values the scalar test computes: `1 / d` per axis and `tmax · slack`.
+        let pre: Vec<[f32; 7]> = self
+            .samples
+            .iter()
+            .map(|r| {
+                let (o, d) = (r.org(), r.dir());
+                [
+                    o[0],
+                    o[1],
+                    o[2],
+                    1.0 / d[0],
+                    1.0 / d[1],
+                    1.0 / d[2],
+                    r.tmax() * (1.0 + T_SLACK),
+                ]
+            })
+            .collect();
         let zero = s.splat_f8(0.0);
         let inf = s.splat_f8(f32::INFINITY);
         let one = s.splat_i8(1);
         let nil = s.splat_i8(0);
         let slack = s.splat_f8(1.0 + T_SLACK);
-        for r in self.samples {
-            let (o, d) = (r.org(), r.dir());
-            let org = [s.splat_f8(o[0]), s.splat_f8(o[1]), s.splat_f8(o[2])];
-            let inv = [
-                s.splat_f8(1.0 / d[0]),
-                s.splat_f8(1.0 / d[1]),
-                s.splat_f8(1.0 / d[2]),
+        for (g, out) in counts.iter_mut().enumerate() {
+            let p = self.pairs;
+            // Spelled out, no closures: they would not inherit the kernel's target features.
+            let (l, h) = (&p.lo[g], &p.hi[g]);
+            let lo = [
+                [
+                    s.load_f8(&l[0][0]),
+                    s.load_f8(&l[0][1]),
+                    s.load_f8(&l[0][2]),
+                ],
+                [
+                    s.load_f8(&l[1][0]),
+                    s.load_f8(&l[1][1]),
+                    s.load_f8(&l[1][2]),
+                ],
             ];
-            let far0 = s.splat_f8(r.tmax()) * slack;
-            for (g, c) in counts.iter_mut().enumerate() {
+            let hi = [
+                [
+                    s.load_f8(&h[0][0]),
+                    s.load_f8(&h[0][1]),
+                    s.load_f8(&h[0][2]),
+                ],
+                [
+                    s.load_f8(&h[1][0]),
+                    s.load_f8(&h[1][1]),
+                    s.load_f8(&h[1][2]),
+                ],
+            ];
+            let valid = [s.mask8(p.valid[g][0]), s.mask8(p.valid[g][1])];
+            let mut c = [nil; 4];
+            for r in &pre {
+                let org = [s.splat_f8(r[0]), s.splat_f8(r[1]), s.splat_f8(r[2])];
+                let inv = [s.splat_f8(r[3]), s.splat_f8(r[4]), s.splat_f8(r[5])];
+                let far0 = s.splat_f8(r[6]);
                 let mut near = [zero; 2];
-                let mut hit = [s.mask8(0); 2];
+                let mut hit = valid;
                 for side in 0..2 {
                     let mut n = zero;
                     let mut f = far0;
                     for k in 0..3 {
-                        let t0 = (s.load_f8(&self.pairs.lo[g][side][k]) - org[k]) * inv[k];
-                        let t1 = (s.load_f8(&self.pairs.hi[g][side][k]) - org[k]) * inv[k];
+                        let t0 = (lo[side][k] - org[k]) * inv[k];
+                        let t1 = (hi[side][k] - org[k]) * inv[k];
                         n = t0.min(t1).max(n);
                         f = t0.max(t1).min(f);
                     }
-                    hit[side] = n.le(f * slack) & s.mask8(self.pairs.valid[g][side]);
+                    hit[side] = n.le(f * slack) & valid[side];
                     near[side] = hit[side].select(n, inf);
                 }
-                let add = |acc: &mut [i32; W], m: S::M8| {
-                    *acc = (s.load_i8(acc) + m.select(one, nil)).to_array();
-                };
-                add(&mut c[0], hit[0]);
-                add(&mut c[1], hit[1]);
-                add(&mut c[2], near[0].lt(near[1]));
-                add(&mut c[3], near[1].lt(near[0]));
+                c[0] = c[0] + hit[0].select(one, nil);
+                c[1] = c[1] + hit[1].select(one, nil);
+                c[2] = c[2] + near[0].lt(near[1]).select(one, nil);
+                c[3] = c[3] + near[1].lt(near[0]).select(one, nil);
             }
+            *out = [
+                c[0].to_array(),
+                c[1].to_array(),
+                c[2].to_array(),
+                c[3].to_array(),
+            ];
         }
         counts
     }
@@ -136,9 +183,61 @@ pub fn sample_pairs(samples: &[RayRec], pairs: &[(Aabb, Aabb)]) -> Vec<Sampled> 
         .collect()
 }
 
+/// One pair against the sample rays, 8 rays per step (the filter's own box test): with a
+/// single pair, lanes over rays do 8 times the useful work of lanes over boxes.
+struct CountOne<'a> {
+    samples: &'a [RayRec],
+    left: &'a Aabb,
+    right: &'a Aabb,
+}
+
+impl Kernel for CountOne<'_> {
+    type Output = Sampled;
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> Sampled {
+        let tr = Transposer::new(s);
+        // An empty box is never entered; it keeps a placeholder box and a zero mask.
+        let keep = [self.left, self.right].map(|b| if b.is_empty() { 0 } else { 0xFF });
+        let fb =
+            [self.left, self.right].map(|b| FilterBox::new(if b.is_empty() { &UNIT } else { b }));
+        let (bl, br) = (Box8::new(s, &fb[0]), Box8::new(s, &fb[1]));
+        let inf = s.splat_f8(f32::INFINITY);
+        let mut out = Sampled::default();
+        // No closures here: they would not inherit the kernel's target features.
+        for recs in self.samples.chunks(8) {
+            let r = Rays8::load(s, &tr, recs);
+            let valid = (1u32 << recs.len()) - 1;
+            let (ml, nl) = bl.test(&r);
+            let (mr, nr) = br.test(&r);
+            let hl = ml & s.mask8(valid & keep[0]);
+            let hr = mr & s.mask8(valid & keep[1]);
+            let (nl, nr) = (hl.select(nl, inf), hr.select(nr, inf));
+            out.hits_left += hl.bitmask().count_ones();
+            out.hits_right += hr.bitmask().count_ones();
+            out.nearer_left += nl.lt(nr).bitmask().count_ones();
+            out.nearer_right += nr.lt(nl).bitmask().count_ones();
+        }
+        out
+    }
+}
+
+/// Stands in for an empty box in [`CountOne`] (whose lanes are masked off).
+const UNIT: Aabb = Aabb {
+    min: [0.0; 3],
+    max: [1.0; 3],
+};
+
 /// Tests the sample rays against one pair of boxes.
 pub fn sample_pair(samples: &[RayRec], left: &Aabb, right: &Aabb) -> Sampled {
-    sample_pairs(samples, &[(*left, *right)])[0]
+    simd::dispatch(
+        simd::selected(),
+        CountOne {
+            samples,
+            left,
+            right,
+        },
+    )
 }
 
 /// Nabata's sampled cost (eq. 2): the plane minimising `α_L·N_L + α_R·N_R`, where `α` is the
@@ -230,6 +329,7 @@ mod tests {
                 want.nearer_right += u32::from(dr < dl);
             }
             assert_eq!(*g, want, "{p:?}");
+            assert_eq!(sample_pair(&samples, &p.0, &p.1), want, "{p:?}");
         }
     }
 }

@@ -388,6 +388,12 @@ impl Bins {
     /// left; empty when there is none).
     pub fn candidates(&self) -> Vec<Candidate> {
         let mut out = Vec::with_capacity(CANDIDATES);
+        self.candidates_into(&mut out);
+        out
+    }
+
+    /// [`Bins::candidates`], appended to `out`.
+    pub fn candidates_into(&self, out: &mut Vec<Candidate>) {
         let mut right = [Acc::EMPTY; BINS];
         let mut rc = [0u32; BINS];
         let mut a = Acc::EMPTY;
@@ -416,7 +422,6 @@ impl Bins {
             n_left: self.big.1 as usize,
             n_right: self.small.1 as usize,
         });
-        out
     }
 
     /// Whether candidate `j` sends box `b` left.

@@ -275,27 +275,31 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
     let samples = &buf[..ns];
     let mut info: Option<Sampled> = None;
     let parts = if n as f32 > o.sah_ratio * t as f32 {
-        // Áfra bins the widest centroid axis only; `all_axes` bins the three.
-        let axes = if o.all_axes {
-            vec![0, 1, 2]
-        } else {
-            vec![split_axis(&node.cents).0]
+        // Áfra bins the widest centroid axis only; `all_axes` bins the three. No iterator
+        // chains or vectors of bins here: a binning is 2 KiB, and moving it around cost
+        // more than filling it.
+        let par = ctx.parallel && t >= o.parallel.data_min_tris;
+        let bin = |axis: usize, big: f32| {
+            if par {
+                parallel::bins_par(boxes, ids, node, axis, big, o.parallel.grain)
+            } else {
+                Bins::new(boxes, ids, node, axis, big)
+            }
         };
-        let binned: Vec<Bins> = axes
-            .into_iter()
-            .enumerate()
-            .filter_map(|(i, axis)| {
-                // The size candidate once per node.
-                let big = if i == 0 { o.big_fraction } else { 0.0 };
-                if ctx.parallel && t >= o.parallel.data_min_tris {
-                    parallel::bins_par(boxes, ids, node, axis, big, o.parallel.grain)
-                } else {
-                    Bins::new(boxes, ids, node, axis, big)
-                }
-            })
-            .collect();
+        let first = split_axis(&node.cents).0;
+        // The size candidate once per node.
+        let mut binned: [Option<Bins>; 3] = [bin(first, o.big_fraction), None, None];
+        if o.all_axes {
+            let others = [(first + 1) % 3, (first + 2) % 3];
+            binned[1] = bin(others[0], 0.0);
+            binned[2] = bin(others[1], 0.0);
+        }
+        let binned: Vec<&Bins> = binned.iter().flatten().collect();
         let per = CANDIDATES;
-        let cands: Vec<Candidate> = binned.iter().flat_map(|b| b.candidates()).collect();
+        let mut cands: Vec<Candidate> = Vec::with_capacity(per * binned.len());
+        for b in &binned {
+            b.candidates_into(&mut cands);
+        }
         let j = if ns > 0 && s.cost {
             let (j, si) = sampled_cost(&cands, samples, &node.bounds, s.prior)?;
             info = Some(si);
@@ -307,7 +311,7 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
             }
             j
         };
-        let (bins, j) = (&binned[j / per], j % per);
+        let (bins, j) = (binned[j / per], j % per);
         if let Some(st) = ctx.stats {
             Stats::add(&st.binned, 1);
         }
@@ -341,7 +345,11 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         false
     } else {
         match info {
-            Some(si) if s.order => si.nearer_left >= si.nearer_right,
+            // A tie (typically every sample ray starts inside both boxes, entry 0) says
+            // nothing: the first ray's direction does.
+            Some(si) if s.order && si.nearer_left != si.nearer_right => {
+                si.nearer_left > si.nearer_right
+            }
             _ => afra_first_left(&rays[0], &parts),
         }
     };
