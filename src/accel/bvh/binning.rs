@@ -82,10 +82,14 @@ impl BinMap {
     /// lane, so the results are identical).
     #[inline(always)]
     pub fn centroid_bins(&self, r: &Ref) -> [usize; 3] {
-        let k: [u32; 4] = std::array::from_fn(|j| {
-            let c = r.lo[j] * 0.5 + r.hi[j] * 0.5;
-            to_bin((c - self.lo[j]) * self.scale[j], self.last)
-        });
+        let k = crate::simd::build4::centroid_bins(
+            &r.lo,
+            &r.hi,
+            &self.lo,
+            &self.scale,
+            self.last,
+            BINS as u32 - 1,
+        );
         [k[0] as usize, k[1] as usize, k[2] as usize]
     }
 
