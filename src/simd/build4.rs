@@ -60,6 +60,71 @@ pub fn centroid_bins(
     }
 }
 
+/// Lane-wise `if a < b { a } else { b }` (MINPS exactly, NaN gives `b`).
+#[inline(always)]
+pub fn min4(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE2 is enabled on every x86_64 target; loads and the store go through
+    // references to whole `[f32; 4]` arrays, unaligned.
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(
+            out.as_mut_ptr(),
+            _mm_min_ps(_mm_loadu_ps(a.as_ptr()), _mm_loadu_ps(b.as_ptr())),
+        );
+        out
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::array::from_fn(|k| if a[k] < b[k] { a[k] } else { b[k] })
+    }
+}
+
+/// Lane-wise `if a > b { a } else { b }` (MAXPS exactly, NaN gives `b`).
+#[inline(always)]
+pub fn max4(a: &[f32; 4], b: &[f32; 4]) -> [f32; 4] {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: as in `min4`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(
+            out.as_mut_ptr(),
+            _mm_max_ps(_mm_loadu_ps(a.as_ptr()), _mm_loadu_ps(b.as_ptr())),
+        );
+        out
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::array::from_fn(|k| if a[k] > b[k] { a[k] } else { b[k] })
+    }
+}
+
+/// Lane-wise `lo·0.5 + hi·0.5` (a box's centroid, without overflow for finite boxes).
+#[inline(always)]
+pub fn mid4(lo: &[f32; 4], hi: &[f32; 4]) -> [f32; 4] {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: as in `min4`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let half = _mm_set1_ps(0.5);
+        let mut out = [0.0f32; 4];
+        _mm_storeu_ps(
+            out.as_mut_ptr(),
+            _mm_add_ps(
+                _mm_mul_ps(_mm_loadu_ps(lo.as_ptr()), half),
+                _mm_mul_ps(_mm_loadu_ps(hi.as_ptr()), half),
+            ),
+        );
+        out
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        std::array::from_fn(|k| lo[k] * 0.5 + hi[k] * 0.5)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -87,5 +152,19 @@ mod tests {
             31,
         );
         assert_eq!(k, [0, 0, 0]);
+    }
+
+    #[test]
+    fn min_max_keep_the_second_operand_on_nan() {
+        let a = [1.0, f32::NAN, 3.0, -0.0];
+        let b = [2.0, 5.0, f32::NAN, 0.0];
+        assert_eq!(min4(&a, &b)[..2], [1.0, 5.0]);
+        assert!(min4(&a, &b)[2].is_nan());
+        assert_eq!(max4(&a, &b)[..2], [2.0, 5.0]);
+        assert!(max4(&a, &b)[2].is_nan());
+        assert_eq!(
+            mid4(&[1.0, 2.0, -4.0, 0.0], &[3.0, 2.0, 4.0, 0.0]),
+            [2.0, 2.0, 0.0, 0.0]
+        );
     }
 }

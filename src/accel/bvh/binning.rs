@@ -651,8 +651,7 @@ fn partition_bounds<const CENT: bool>(
     fn add<const CENT: bool>(b: &mut B4, c: &mut B4, r: &Ref) {
         b.grow(&r.b4());
         if CENT {
-            let m: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
-            c.grow(&B4::point(m));
+            c.grow_centroid(r);
         }
     }
     let mut i = 0;
