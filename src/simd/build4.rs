@@ -129,20 +129,31 @@ pub fn mid4(lo: &[f32; 4], hi: &[f32; 4]) -> [f32; 4] {
 mod tests {
     use super::*;
 
+    /// The portable form, lane by lane.
+    fn reference(lo: &[f32; 4], hi: &[f32; 4], map_lo: &[f32; 4], scale: &[f32; 4]) -> [u32; 3] {
+        std::array::from_fn(|j| {
+            let c = lo[j] * 0.5 + hi[j] * 0.5;
+            let f = (c - map_lo[j]) * scale[j] - 0.5;
+            let f = if f > 0.0 { f } else { 0.0 };
+            let f = if f < 31.0 { f } else { 31.0 };
+            (f + 8_388_608.0).to_bits() & 31
+        })
+    }
+
     #[test]
     fn bins_clamp_and_take_nan_to_zero() {
         let z = [0.0f32; 4];
-        let scale = [1.0, 2.0, 4.0, 0.0];
+        let scale = [1.0, 3.0, 4.0, 0.0];
         let k = centroid_bins(
             &[3.0, 1.0, 100.0, 0.0],
-            &[5.0, 2.0, 100.0, 0.0],
+            &[5.5, 2.0, 100.0, 0.0],
             &z,
             &scale,
             31.0,
             31,
         );
-        // Centroids 4, 1.5, 100: bins ⌊4⌋ = 4, ⌊3⌋ = 3, clamped to 31.
-        assert_eq!(k, [4, 3, 31]);
+        // Centroids 4.25, 1.5, 100: bins 4, 4 (4.5 − 0.5 = 4 exactly), clamped to 31.
+        assert_eq!(k, [4, 4, 31]);
         let k = centroid_bins(
             &[f32::NAN, -5.0, 0.0, 0.0],
             &[f32::NAN, -5.0, 0.0, 0.0],
@@ -152,6 +163,24 @@ mod tests {
             31,
         );
         assert_eq!(k, [0, 0, 0]);
+    }
+
+    #[test]
+    fn bins_match_the_portable_form() {
+        let map_lo = [-1.0, 0.25, -1e3, 0.0];
+        let scale = [31.0 / 2.0, 7.3, 0.0151, 0.0];
+        let mut x = 0.123f32;
+        for _ in 0..2000 {
+            let lo: [f32; 4] = std::array::from_fn(|k| {
+                x = (x * 3.7 + 0.31).fract();
+                (x - 0.5) * [4.0, 8.0, 3e3, 1.0][k]
+            });
+            let hi: [f32; 4] = std::array::from_fn(|k| lo[k] + x * 0.1);
+            assert_eq!(
+                centroid_bins(&lo, &hi, &map_lo, &scale, 31.0, 31),
+                reference(&lo, &hi, &map_lo, &scale)
+            );
+        }
     }
 
     #[test]
