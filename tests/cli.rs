@@ -273,3 +273,78 @@ fn bench_runs_and_agrees_with_its_reference() {
     assert!(dump.join("quad-interior-diffuse8.ray").exists());
     assert!(dump.join("quad-interior-primary.hit").exists());
 }
+
+/// The manifest's directory holds the committed sample scenes.
+fn sample(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn bench_frames_measures_every_strategy_on_moving_geometry() {
+    // An animated scene (the fox walks) and a static one (twisted): every strategy traces
+    // the same rays each frame and agrees with the first one.
+    for (scene, motion) in [("Fox.glb", "animation"), ("SimpleMeshes.glb", "twist")] {
+        let (ok, j, err) = rayd(&[
+            "bench",
+            &sample(scene),
+            "--frames",
+            "3",
+            "--motion",
+            motion,
+            "--accel",
+            "dacrt,dacrt-sampled,mbvh8,bvh2",
+            "--sets",
+            "primary,diffuse1",
+            "--rays-per-frame",
+            "256,1024",
+            "--threads",
+            "1,2",
+        ]);
+        assert!(ok, "{scene}: {err}");
+        let sc = &j["scenes"][0];
+        assert!(sc["motion"].as_str().unwrap().starts_with(motion), "{sc}");
+        let series = sc["series"].as_array().unwrap();
+        // 2 sets × 2 ray counts × 2 thread counts for dacrt, dacrt-sampled, and each BVH
+        // rebuilt and refitted.
+        assert_eq!(series.len(), 6 * 8, "{scene}: {err}");
+        for s in series {
+            assert_eq!(s["agreement"], 1.0, "{scene}: {s}");
+            assert_eq!(s["update_seconds"].as_array().unwrap().len(), 3, "{s}");
+            assert_eq!(s["trace_seconds"].as_array().unwrap().len(), 3, "{s}");
+        }
+        // auto is scored where its candidates were measured.
+        let auto = sc["auto"].as_array().unwrap();
+        assert_eq!(auto.len(), 2 * 2 * 2 * 2, "{scene}: {sc}");
+    }
+}
+
+#[test]
+fn bench_frames_refuses_what_it_cannot_measure() {
+    let (ok, _, err) = rayd(&["bench", &sample("Fox.glb"), "--frames", "1"]);
+    assert!(!ok && err.contains("--frames must be at least 2"), "{err}");
+    let (ok, _, err) = rayd(&[
+        "bench",
+        &sample("SimpleMeshes.glb"),
+        "--frames",
+        "2",
+        "--motion",
+        "animation",
+    ]);
+    assert!(
+        !ok && err.contains("needs a scene with animations"),
+        "{err}"
+    );
+    let (ok, _, err) = rayd(&[
+        "bench",
+        &sample("Fox.glb"),
+        "--frames",
+        "2",
+        "--motion",
+        "spin",
+    ]);
+    assert!(!ok && err.contains("unknown motion 'spin'"), "{err}");
+}

@@ -7,10 +7,11 @@
 //! (smallest t, then lowest id). Rays are split into chunks that rayon spreads over the pool
 //! the caller installed; the SIMD backend is chosen once per chunk.
 
+use super::bvh::RefitError;
 use super::triangle::{
     pack_all, MollerTrumbore, PreparedRay, PreparedRay8, Tri8, TriTest, Watertight,
 };
-use super::{Intersector, Precision, Query};
+use super::{AccelError, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, Backend, FloatV, IntV, Kernel, MaskV, Select, Simd};
 use rayon::prelude::*;
@@ -28,6 +29,8 @@ enum Packs {
 pub struct Brute {
     packs: Packs,
     backend: Backend,
+    /// Triangles given (all ids): what a refit must bring.
+    count: usize,
 }
 
 impl Brute {
@@ -50,7 +53,11 @@ impl Brute {
             Precision::Fast => Packs::Fast(pack_all(triangles)),
             Precision::Watertight => Packs::Watertight(pack_all(triangles)),
         };
-        Brute { packs, backend }
+        Brute {
+            packs,
+            backend,
+            count: triangles.len(),
+        }
     }
 
     /// The SIMD backend this instance traces with.
@@ -245,5 +252,22 @@ impl Intersector for Brute {
             Packs::Fast(p) => p.capacity() * tri8,
             Packs::Watertight(p) => p.capacity() * tri8,
         }
+    }
+
+    /// Replaces the packs (brute's whole "build"). Only the count is checked: with no
+    /// structure to keep, a triangle may change between degenerate and not.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        if triangles.len() != self.count {
+            let reason = RefitError::Count {
+                expected: self.count,
+                got: triangles.len(),
+            };
+            return Err(AccelError::refit(self.name(), reason));
+        }
+        self.packs = match self.packs {
+            Packs::Fast(_) => Packs::Fast(pack_all(triangles)),
+            Packs::Watertight(_) => Packs::Watertight(pack_all(triangles)),
+        };
+        Ok(())
     }
 }

@@ -5,6 +5,7 @@
 //! and made by [`build`]. They parallelise on the rayon pool they are called in, so the
 //! caller bounds the threads by installing a pool.
 
+pub mod auto;
 pub mod brute;
 pub mod bvh;
 pub mod dacrt;
@@ -74,11 +75,11 @@ impl AccelKind {
         self != AccelKind::Embree || cfg!(feature = "embree")
     }
 
-    /// What `auto` becomes for a job of `rays` rays over `triangles` triangles: `mbvh8`,
-    /// the fastest core on incoherent and coherent rays alike (until DACRT exists).
-    pub fn resolve(self, _rays: usize, _triangles: usize) -> AccelKind {
+    /// What this kind runs as for `job`: `auto` becomes the accelerator its cost model
+    /// expects to finish first ([`auto::choose`]); every other kind is itself.
+    pub fn resolve(self, job: &auto::Job) -> AccelKind {
         match self {
-            AccelKind::Auto => AccelKind::Mbvh8,
+            AccelKind::Auto => auto::choose(job),
             k => k,
         }
     }
@@ -173,6 +174,23 @@ pub enum AccelError {
         /// What went wrong.
         message: String,
     },
+    /// [`Intersector::refit`] refused the new positions; the accelerator is unchanged and
+    /// the caller should build a new one over them.
+    #[error("{accel}: refit refused: {reason}")]
+    Refit {
+        /// Which accelerator.
+        accel: &'static str,
+        /// Why: a different triangle count (expected, got), a triangle that changed
+        /// between degenerate and not (its id), or no refit at all in this accelerator.
+        reason: bvh::RefitError,
+    },
+}
+
+impl AccelError {
+    /// The refusal of `accel` for `reason`.
+    pub fn refit(accel: &'static str, reason: bvh::RefitError) -> AccelError {
+        AccelError::Refit { accel, reason }
+    }
 }
 
 /// A built accelerator: answers batches of rays.
@@ -200,6 +218,26 @@ pub trait Intersector: Send + Sync {
 
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
+
+    /// Takes new world positions for the same triangles (same count, same ids): a TRI1
+    /// geometry update, or the next time of an animation. It exists because a frame of
+    /// moving geometry should cost a refit (one pass over the triangles and the nodes),
+    /// not a build.
+    ///
+    /// After `Ok`, every query answers for the new positions exactly as a fresh build
+    /// over them would answer (for the BVH cores: bit-identical hits, since the leaves
+    /// run the same test on the same data). The structure's topology is kept, so its
+    /// boxes loosen as triangles move away from where the build grouped them, and an SBVH
+    /// loses its clipped leaf boxes (see the notes of `bvh::Mbvh::refit`): traversal gets
+    /// slower, never wrong; rebuild when that matters.
+    ///
+    /// On `Err` ([`AccelError::Refit`]: another triangle count, a triangle that moved
+    /// between degenerate and traceable, or an accelerator that cannot refit) nothing
+    /// changed: the old positions still answer, and the caller builds a new accelerator.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        let _ = triangles;
+        Err(AccelError::refit(self.name(), bvh::RefitError::Unsupported))
+    }
 
     /// Structure statistics (node counts, SIMD utilisation, bytes per triangle…) for
     /// `rayd info --accel` and `rayd bench`; `None` for cores without a structure.

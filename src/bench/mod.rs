@@ -8,6 +8,7 @@
 //! multi-threaded, the median of several runs is reported, and its hits are checked against
 //! a reference.
 
+mod dynamic;
 mod raysets;
 mod report;
 mod view;
@@ -20,8 +21,9 @@ use serde::Serialize;
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
 use crate::geometry::Hit;
 pub use crate::render::camera::CameraChoice;
+pub use dynamic::{AutoPick, DynamicConfig, DynamicReport, DynamicScene, FrameSeries, Motion};
 pub use raysets::{RaySet, SetKind};
-pub use report::{render_csv, render_table};
+pub use report::{render_csv, render_dynamic_table, render_table};
 pub use view::{View, ViewKind};
 
 /// Errors of a benchmark run.
@@ -258,6 +260,11 @@ fn auto_reference(triangles: usize, rays_per_set: usize) -> AccelKind {
     }
 }
 
+/// Runs the dynamic-geometry benchmark (`rayd bench --frames`); progress goes to stderr.
+pub fn run_dynamic(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
+    dynamic::run(config)
+}
+
 /// Runs the benchmark; progress goes to stderr.
 pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
     if config.scenes.is_empty() {
@@ -336,11 +343,18 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 results: Vec::new(),
             };
             let rays_total: usize = sets.iter().map(|s| s.rays.len()).sum();
-            for &kind in &config.accels {
-                let kind = kind.resolve(rays_total, view.triangles.len());
+            for &asked in &config.accels {
                 for &threads in &config.threads {
                     let p = pool(threads)?;
                     let threads = p.current_num_threads();
+                    let kind = asked.resolve(&crate::accel::auto::Job {
+                        rays: rays_total,
+                        batches: sets.len(),
+                        triangles: view.triangles.len(),
+                        threads,
+                        quality: config.build,
+                        geometry: crate::accel::auto::Geometry::New,
+                    });
                     let options = BuildOptions { threads, ..options };
                     let mut build_times = Vec::new();
                     let mut accel = None;

@@ -113,6 +113,20 @@ impl View {
         let bounds = scene
             .bounds()
             .ok_or_else(|| BenchError::Config("the scene has no triangles to benchmark".into()))?;
+        View::around(scene, bounds, kind, choice, width, height)
+    }
+
+    /// Makes the view of `scene` as if its triangles filled `bounds`: a moving scene's
+    /// room and default camera are set from the box of all its frames, so that every frame
+    /// stays inside the room.
+    pub fn around(
+        scene: &Scene,
+        bounds: Aabb,
+        kind: ViewKind,
+        choice: &CameraChoice,
+        width: u32,
+        height: u32,
+    ) -> Result<View, BenchError> {
         let aspect = width as f64 / height as f64;
         let c = bounds.center().map(f64::from);
         let room = room_around(&bounds);

@@ -4,7 +4,7 @@
 
 use super::{parse_accel, parse_build, parse_precision, CameraArgs, CliError, PathArg};
 use crate::accel::{AccelKind, BuildQuality, Precision};
-use crate::bench::{BenchConfig, SetKind, ViewKind};
+use crate::bench::{BenchConfig, DynamicConfig, Motion, SetKind, ViewKind};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct BenchArgs {
@@ -52,6 +52,17 @@ pub(super) struct BenchArgs {
     /// Write each ray set (RAY1) and the reference hits (HIT1) into this directory.
     #[arg(long)]
     dump: Option<PathArg>,
+    /// Dynamic geometry: this many frames of moving triangles, each paying its own
+    /// preparation (rebuild, refit or DACRT's precompute) and trace.
+    #[arg(long)]
+    frames: Option<usize>,
+    /// With --frames: how the geometry moves (auto: the scene's animation, else twist).
+    #[arg(long, default_value = "auto", value_parser = parse_motion)]
+    motion: Motion,
+    /// With --frames: rays per frame, comma-separated (each a square image of about that
+    /// many pixels).
+    #[arg(long, value_delimiter = ',', default_value = "262144,1048576")]
+    rays_per_frame: Vec<usize>,
     /// What goes to stdout: json (the report), table (Markdown) or csv.
     #[arg(long, default_value = "json", value_parser = ["json", "table", "csv"])]
     format: String,
@@ -63,11 +74,18 @@ fn parse_set(s: &str) -> Result<SetKind, String> {
     })
 }
 
+fn parse_motion(s: &str) -> Result<Motion, String> {
+    Motion::parse(s).ok_or_else(|| format!("unknown motion '{s}' (auto, animation or twist)"))
+}
+
 fn parse_view(s: &str) -> Result<ViewKind, String> {
     ViewKind::parse(s).ok_or_else(|| format!("unknown view '{s}' (interior or exterior)"))
 }
 
 pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
+    if let Some(frames) = a.frames {
+        return run_dynamic(a, frames);
+    }
     let config = BenchConfig {
         scenes: a.scenes,
         accels: a.accel,
@@ -96,6 +114,37 @@ pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
             print!("{}", crate::bench::render_csv(&report));
             Ok(serde_json::Value::Null)
         }
+        _ => {
+            eprintln!("{table}");
+            Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)
+        }
+    }
+}
+
+fn run_dynamic(a: BenchArgs, frames: usize) -> Result<serde_json::Value, CliError> {
+    let config = DynamicConfig {
+        scenes: a.scenes,
+        accels: a.accel,
+        sets: a.sets,
+        rays_per_frame: a.rays_per_frame,
+        frames,
+        motion: a.motion,
+        threads: a.threads,
+        camera: a.camera.choice(),
+        build: a.build,
+        precision: a.precision,
+        seed: a.seed,
+    };
+    let report = crate::bench::run_dynamic(&config)?;
+    let table = crate::bench::render_dynamic_table(&report);
+    match a.format.as_str() {
+        "table" => {
+            print!("{table}");
+            Ok(serde_json::Value::Null)
+        }
+        "csv" => Err(CliError::Usage(
+            "--format csv is not available with --frames (use json or table)".into(),
+        )),
         _ => {
             eprintln!("{table}");
             Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)

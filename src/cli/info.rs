@@ -44,10 +44,16 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         "simd": crate::simd::selected().name(),
     });
     if let Some(kind) = a.accel {
-        let kind = kind.resolve(0, scene.triangles.len());
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(a.threads)
             .build()?;
+        // What `auto` would run for a frame of a million rays.
+        let kind = kind.resolve(&crate::accel::auto::Job::batch(
+            1 << 20,
+            scene.triangles.len(),
+            pool.current_num_threads(),
+            a.build,
+        ));
         let options = crate::accel::BuildOptions {
             quality: a.build,
             precision: a.precision,

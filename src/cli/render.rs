@@ -5,6 +5,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::{parse_integrator, CameraArgs, CliError, CoreArgs, PathArg};
+use crate::accel::auto::{Geometry, Job};
 use crate::render::camera::ViewCamera;
 use crate::render::image::{encode, ImageFormat};
 use crate::render::{Integrator, RenderOptions};
@@ -66,11 +67,24 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     let aspect = a.width as f64 / a.height as f64;
     let camera = ViewCamera::choose(&a.camera.choice(), &scene, aspect)?;
     let diagonal = scene.bounds().map(|b| b.diagonal()).unwrap_or(1.0);
-    let rays_estimate = a.width as usize * a.height as usize * a.spp as usize;
-    let kind = a.core.accel.resolve(rays_estimate, scene.triangles.len());
     let pool = a.core.pool()?;
     let threads = pool.current_num_threads();
     let options = a.core.build_options(threads);
+    // One batch per sample for the camera rays, plus one per AO sample or path bounce.
+    let per_sample = match a.integrator {
+        Integrator::Ao => 2,
+        Integrator::Path => 1 + a.bounces as usize,
+        _ => 1,
+    };
+    let batches = a.spp as usize * per_sample;
+    let kind = a.core.accel.resolve(&Job {
+        rays: a.width as usize * a.height as usize * batches,
+        batches,
+        triangles: scene.triangles.len(),
+        threads,
+        quality: options.quality,
+        geometry: Geometry::New,
+    });
     let opts = RenderOptions {
         width: a.width,
         height: a.height,

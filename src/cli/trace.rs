@@ -5,6 +5,7 @@ use std::time::Instant;
 use serde_json::json;
 
 use super::{parse_hit, parse_query, CliError, CoreArgs, PathArg};
+use crate::accel::auto::Job;
 use crate::accel::Query;
 use crate::formats::{binary, HitFormat};
 use crate::geometry::{Hit, Ray};
@@ -44,10 +45,15 @@ pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
             });
         }
     }
-    let kind = a.core.accel.resolve(rays.len(), scene.triangles.len());
     let pool = a.core.pool()?;
     let threads = pool.current_num_threads();
     let options = a.core.build_options(threads);
+    let kind = a.core.accel.resolve(&Job::batch(
+        rays.len(),
+        scene.triangles.len(),
+        threads,
+        options.quality,
+    ));
     let (accel, build_seconds, body, trace_seconds) = pool.install(|| {
         let t0 = Instant::now();
         let accel = crate::accel::build(kind, &scene.triangles, &options)?;

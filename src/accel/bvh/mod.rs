@@ -66,6 +66,8 @@ mod stats;
 mod validate;
 mod wide;
 
+pub(crate) use refit::check as check_refit;
+
 pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};
 pub use stats::BvhStats;
 pub use wide::{Child, Mbvh, Mbvh4, Mbvh8, MultiTri, WideNode};
@@ -92,6 +94,9 @@ pub enum RefitError {
         /// The first such triangle id found.
         id: u32,
     },
+    /// The accelerator has no way to take new positions (only a new build helps).
+    #[error("this accelerator cannot refit; it must be rebuilt")]
+    Unsupported,
 }
 
 /// Deepest multi-node level (or binary level for [`Bvh2`]) built with the split the

@@ -22,8 +22,13 @@ use crate::geometry::{Aabb, Triangle};
 const PAR_REFIT: u32 = 256;
 
 /// Checks that `triangles` can replace the positions of a tree built over `count`
-/// triangles that left out `excluded`.
-fn check(excluded: &[u32], count: usize, triangles: &[Triangle]) -> Result<(), RefitError> {
+/// triangles that left out `excluded` (ascending): shared by every structure that
+/// refits, so that all of them refuse the same updates.
+pub(crate) fn check(
+    excluded: &[u32],
+    count: usize,
+    triangles: &[Triangle],
+) -> Result<(), RefitError> {
     if triangles.len() != count {
         return Err(RefitError::Count {
             expected: count,

@@ -37,7 +37,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::{Intersector, Precision, Query};
+use super::bvh::RefitError;
+use super::{AccelError, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 
 pub use options::{DacrtOptions, ForkSplit, Parallelism, Sampling};
@@ -226,5 +227,22 @@ impl Intersector for Dacrt {
 
     fn bytes(&self) -> usize {
         self.tris.bytes()
+    }
+
+    /// Recomputes the per-frame precompute, which is all a DACRT "build" is (so a refit
+    /// costs the same as a build, and the answers are a fresh build's). Only the count is
+    /// checked: with no structure to keep, a triangle may change between degenerate and
+    /// not.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        let expected = self.tris.boxes.len();
+        if triangles.len() != expected {
+            let reason = RefitError::Count {
+                expected,
+                got: triangles.len(),
+            };
+            return Err(AccelError::refit(self.name, reason));
+        }
+        self.tris = TriData::new(triangles);
+        Ok(())
     }
 }

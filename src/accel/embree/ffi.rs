@@ -66,6 +66,8 @@ pub const RTC_BUILD_QUALITY_LOW: RTCBuildQuality = 0;
 pub const RTC_BUILD_QUALITY_MEDIUM: RTCBuildQuality = 1;
 /// SAH builder with spatial splits.
 pub const RTC_BUILD_QUALITY_HIGH: RTCBuildQuality = 2;
+/// Refits the existing BVH when only the vertex buffer changed (geometries only).
+pub const RTC_BUILD_QUALITY_REFIT: RTCBuildQuality = 3;
 
 /// `enum RTCGeometryType`.
 pub type RTCGeometryType = c_uint;
@@ -280,6 +282,8 @@ extern "C" {
     ) -> *mut c_void;
     /// Finishes the geometry's changes.
     pub fn rtcCommitGeometry(geometry: RTCGeometry);
+    /// Marks a buffer of the geometry as modified (its contents were written in place).
+    pub fn rtcUpdateGeometryBuffer(geometry: RTCGeometry, kind: RTCBufferType, slot: c_uint);
 }
 
 /// The header's name of an error code, for messages.

@@ -44,16 +44,32 @@ const CHUNK: usize = 256;
 /// Field order is drop order: the scene goes before the device that made it, and the
 /// callback state outlives both because Embree may call back while releasing them.
 pub struct Embree {
+    /// The triangle geometry and its vertex buffer, for refits (`None` for an empty
+    /// scene). Released before the scene (which holds its own reference).
+    mesh: Option<Mesh>,
     scene: SceneHandle,
     /// Held only to be released after the scene (Embree also keeps the device alive
     /// through the scene's own reference; owning it makes the order explicit).
     _device: DeviceHandle,
     state: Box<DeviceState>,
-    /// Triangles given, for the fallback byte estimate.
+    /// Triangles given, for the fallback byte estimate and the refit's count check.
     triangles: usize,
+    /// The build quality, which a refit that cannot refit goes back to.
+    quality: ffi::RTCBuildQuality,
+    /// Ids of the triangles that were not traceable (degenerate or non-finite) at the
+    /// last build, ascending: Embree's refit keeps the primitives its build kept.
+    excluded: Vec<u32>,
 }
 
-// SAFETY: `Embree` holds raw Embree handles. Embree objects are reference-counted with
+/// The geometry attached to the scene and the vertex buffer Embree allocated for it.
+struct Mesh {
+    geometry: GeometryHandle,
+    /// `9·T` f32, owned by the geometry (alive while `geometry` is).
+    vertices: NonNull<f32>,
+}
+
+// SAFETY: `Embree` holds raw Embree handles (and a pointer into a buffer the geometry owns,
+// written only through `&mut self` in `refit`). Embree objects are reference-counted with
 // atomic counters and may be released from any thread, so moving the owner is sound (Send).
 // After `rtcCommitScene` returns, the scene is immutable and Embree documents
 // `rtcIntersect1`/`rtcOccluded1` as safe to call concurrently from any number of threads on
@@ -276,6 +292,7 @@ impl Embree {
 
         // An empty scene has no geometry at all: Embree answers every ray with a miss, and a
         // triangle geometry with zero-sized buffers is not needed.
+        let mut mesh = None;
         if !triangles.is_empty() {
             // SAFETY: `device` is live.
             let geometry = NonNull::new(unsafe {
@@ -345,6 +362,10 @@ impl Embree {
                 ffi::rtcAttachGeometry(scene.0.as_ptr(), g);
             }
             check("rtcCommitGeometry/rtcAttachGeometry")?;
+            mesh = Some(Mesh {
+                geometry,
+                vertices: NonNull::new(vertices).expect("checked above"),
+            });
         }
 
         // SAFETY: `scene` is live; this builds the BVH (on Embree's threads) and makes the
@@ -353,10 +374,13 @@ impl Embree {
         check("rtcCommitScene")?;
 
         Ok(Embree {
+            mesh,
             scene,
             _device: device,
             state,
             triangles: triangles.len(),
+            quality: q,
+            excluded: untraceable(triangles),
         })
     }
 
@@ -480,6 +504,60 @@ impl Intersector for Embree {
             self.triangles * (36 + 12)
         }
     }
+
+    /// Writes the new positions into Embree's vertex buffer and recommits. With the same
+    /// triangles left out as at the last build, the geometry's build quality is set to
+    /// `RTC_BUILD_QUALITY_REFIT`, so Embree refits its BVH (the first refit after a build
+    /// still builds once, because Embree's refitting builder needs a tree of its own);
+    /// otherwise it is set back to the build's quality and Embree rebuilds. Only another
+    /// triangle count is refused. An Embree failure during the commit is a
+    /// [`AccelError::Backend`] and leaves the scene unusable.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        if triangles.len() != self.triangles {
+            let reason = crate::accel::bvh::RefitError::Count {
+                expected: self.triangles,
+                got: triangles.len(),
+            };
+            return Err(AccelError::refit(self.name(), reason));
+        }
+        let Some(mesh) = &self.mesh else {
+            return Ok(());
+        };
+        let same = crate::accel::bvh::check_refit(&self.excluded, self.triangles, triangles);
+        let quality = if same.is_ok() {
+            ffi::RTC_BUILD_QUALITY_REFIT
+        } else {
+            self.excluded = untraceable(triangles);
+            self.quality
+        };
+        let g = mesh.geometry.0.as_ptr();
+        // SAFETY: the vertex buffer holds `9·T` f32 (allocated for `3·T` FLOAT3 items by
+        // `with_config`) and lives as long as the geometry, which `mesh` holds; `&mut self`
+        // means no trace reads the scene meanwhile; `Triangle` is `repr(C)` nine f32 and
+        // the count was checked above. The geometry is live, so the calls on it and on
+        // the scene are valid; the commits rebuild or refit and make the scene immutable
+        // again.
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                triangles.as_ptr() as *const f32,
+                mesh.vertices.as_ptr(),
+                triangles.len() * 9,
+            );
+            ffi::rtcSetGeometryBuildQuality(g, quality);
+            ffi::rtcUpdateGeometryBuffer(g, ffi::RTC_BUFFER_TYPE_VERTEX, 0);
+            ffi::rtcCommitGeometry(g);
+            ffi::rtcCommitScene(self.scene.0.as_ptr());
+        }
+        let device = &self._device;
+        pending_error(device, &self.state, "refit (rtcCommitScene)")
+    }
+}
+
+/// Ids of the triangles a BVH leaves out (degenerate or non-finite), ascending.
+fn untraceable(triangles: &[Triangle]) -> Vec<u32> {
+    (0..triangles.len() as u32)
+        .filter(|&i| !crate::accel::bvh::is_traceable(&triangles[i as usize]))
+        .collect()
 }
 
 /// Sets MXCSR's flush-to-zero and denormals-are-zero bits for the current thread, as Embree

@@ -18,9 +18,11 @@
 //! bits 0..29 first pack, bits 29..31 pack count − 1), except that empty lanes point at
 //! an all-padding pack 0 instead of −1.
 
-use crate::accel::bvh::{self, Child};
-use crate::accel::triangle::{Tri8, TriTest};
 use rayon::prelude::*;
+
+use crate::accel::bvh::{self, Child, RefitError};
+use crate::accel::triangle::{Tri8, TriTest};
+use crate::geometry::{Aabb, Triangle};
 
 /// One multi-node: N child boxes and N child ids, 32·N bytes (N = 8: four cache lines,
 /// N = 4: two), aligned to a cache line.
@@ -66,6 +68,10 @@ fn leaf_id(start: usize, n: usize) -> i32 {
     (1u32 << 31 | ((n as u32 - 1) << START_BITS) | start as u32) as i32
 }
 
+/// The child id of an unused lane: a leaf of one lane in the all-padding pack 0 (real
+/// leaves start at lane 8).
+const EMPTY_LANE: i32 = (1u32 << 31) as i32;
+
 /// Splits a leaf id into (first global lane, triangle count).
 #[inline(always)]
 pub fn leaf_lanes(id: i32) -> (usize, usize) {
@@ -89,6 +95,11 @@ pub struct TravTree<const N: usize, T> {
     pub scale: f32,
     /// Deepest multi-node level (root = 1): bounds the traversal stack.
     pub depth: usize,
+    /// Triangles the tree was built over (all ids): a refit must bring as many.
+    pub triangles: usize,
+    /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
+    /// leave exactly these out.
+    pub excluded: Vec<u32>,
 }
 
 impl<const N: usize, T: TriTest> TravTree<N, T> {
@@ -107,7 +118,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         // are padding, which unused node lanes point at (see `TravNode::child`).
         let mut leaves: Vec<LeafPlace> = Vec::with_capacity(mts.len());
         let mut pos = 8usize;
-        let empty = leaf_id(0, 1);
+        let empty = EMPTY_LANE;
         for n in src {
             let mut planes = [[0.0f32; N]; 6];
             planes[..3].copy_from_slice(&n.min);
@@ -143,28 +154,138 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             });
         }
         let packs = fill_packs(mts, &leaves, pos.div_ceil(8));
-        let b = tree.bounds();
-        let scale = if b.is_empty() {
-            0.0
-        } else {
-            b.min
-                .iter()
-                .chain(&b.max)
-                .fold(0.0f32, |m, x| m.max(x.abs()))
-        };
         TravTree {
             nodes,
             packs,
-            scale,
+            scale: scale_of(&tree.bounds()),
             depth: depth(src),
+            triangles: tree.triangle_count(),
+            excluded: tree.excluded().to_vec(),
         }
+    }
+
+    /// Takes new positions for the same triangles (same count, same ids) in place,
+    /// without the builder's tree: every pack re-gathers its lanes by id (parallel over
+    /// packs), then every box is recomputed bottom-up from the triangles of its leaf's
+    /// lanes or the union of its child node's lanes, disjoint subtrees (contiguous in the
+    /// depth-first order) being separate rayon tasks. `scale` follows the new bounds, so
+    /// the grown slab test (`ray::BoxRay`) stays conservative. Boxes are the tight boxes
+    /// of whole triangles (SBVH leaves lose their clipping). Refused, tree unchanged, as
+    /// `bvh::Mbvh::refit` refuses.
+    pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), RefitError> {
+        bvh::check_refit(&self.excluded, self.triangles, triangles)?;
+        self.packs
+            .par_iter_mut()
+            .with_min_len(64)
+            .for_each(|p| p.0.regather(triangles));
+        let bounds = if self.nodes.is_empty() {
+            Aabb::EMPTY
+        } else {
+            refit_nodes(&mut self.nodes, 0, &self.packs, triangles)
+        };
+        self.scale = scale_of(&bounds);
+        Ok(())
     }
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         self.nodes.capacity() * std::mem::size_of::<TravNode<N>>()
             + self.packs.capacity() * std::mem::size_of::<Pack<T>>()
+            + self.excluded.capacity() * std::mem::size_of::<u32>()
     }
+}
+
+/// Largest |coordinate| of `b`, 0 when empty (see `TravTree::scale`).
+fn scale_of(b: &Aabb) -> f32 {
+    if b.is_empty() {
+        0.0
+    } else {
+        b.min
+            .iter()
+            .chain(&b.max)
+            .fold(0.0f32, |m, x| m.max(x.abs()))
+    }
+}
+
+/// Subtrees with at least this many nodes are refitted as separate rayon tasks.
+const PAR_REFIT: usize = 128;
+
+/// Box of the triangles of the leaf `id` (their vertices as given, read by the lanes' ids).
+fn leaf_box<T>(id: i32, packs: &[Pack<T>], triangles: &[Triangle]) -> Aabb {
+    let (start, n) = leaf_lanes(id);
+    let mut b = Aabb::EMPTY;
+    // A leaf's lanes are consecutive global lanes (a leaf of more than 8 starts a pack).
+    for l in start..start + n {
+        let tid = packs[l / 8].0.ids[l % 8];
+        for &v in &triangles[tid as usize].v {
+            b.grow(v);
+        }
+    }
+    b
+}
+
+/// Refits the subtree whose root is `nodes[0]` (global index `base`; `nodes` is exactly
+/// that subtree, depth-first) and returns its box.
+fn refit_nodes<const N: usize, T: Send + Sync>(
+    nodes: &mut [TravNode<N>],
+    base: usize,
+    packs: &[Pack<T>],
+    triangles: &[Triangle],
+) -> Aabb {
+    let len = nodes.len();
+    let (me, mut rest) = nodes.split_first_mut().expect("a subtree has a root");
+    // Inner children, by index: each owns the nodes up to the next one (or the end of
+    // this subtree), the first one starting right after this node.
+    let mut inner: [(usize, usize); N] = [(usize::MAX, 0); N];
+    let mut k = 0;
+    for (lane, &c) in me.child.iter().enumerate() {
+        if c >= 0 {
+            inner[k] = (c as usize, lane);
+            k += 1;
+        }
+    }
+    let inner = &mut inner[..k];
+    inner.sort_unstable();
+    let mut jobs: Vec<(usize, usize, &mut [TravNode<N>])> = Vec::with_capacity(k);
+    for j in 0..k {
+        let (idx, lane) = inner[j];
+        let end = inner.get(j + 1).map_or(base + len, |&(next, _)| next);
+        debug_assert_eq!(idx, base + len - rest.len(), "children follow their parent");
+        let (mine, tail) = std::mem::take(&mut rest).split_at_mut(end - idx);
+        rest = tail;
+        jobs.push((lane, idx, mine));
+    }
+    let mut boxes = [Aabb::EMPTY; N];
+    if len >= PAR_REFIT && k > 1 && rayon::current_num_threads() > 1 {
+        let found: Vec<(usize, Aabb)> = jobs
+            .into_par_iter()
+            .map(|(lane, idx, sub)| (lane, refit_nodes(sub, idx, packs, triangles)))
+            .collect();
+        for (lane, b) in found {
+            boxes[lane] = b;
+        }
+    } else {
+        for (lane, idx, sub) in jobs {
+            boxes[lane] = refit_nodes(sub, idx, packs, triangles);
+        }
+    }
+    let mut all = Aabb::EMPTY;
+    for (lane, b) in boxes.iter_mut().enumerate() {
+        let c = me.child[lane];
+        if c == EMPTY_LANE {
+            // Unused lane: keeps its empty box.
+            continue;
+        }
+        if c < 0 {
+            *b = leaf_box(c, packs, triangles);
+        }
+        for a in 0..3 {
+            me.planes[a][lane] = b.min[a];
+            me.planes[a + 3][lane] = b.max[a];
+        }
+        all.union(b);
+    }
+    all
 }
 
 /// Where one leaf's triangles go: `n` triangles from multi-triangles

@@ -20,7 +20,7 @@ pub mod traverse;
 pub use layout::{TravNode, TravTree};
 
 use super::triangle::{MollerTrumbore, TriTest, Watertight};
-use super::{bvh, BuildOptions, Intersector, Precision, Query};
+use super::{bvh, AccelError, BuildOptions, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, Backend, Kernel, Simd};
 use rayon::prelude::*;
@@ -189,5 +189,14 @@ where
             Trees::Fast(t) => t.bytes(),
             Trees::Watertight(t) => t.bytes(),
         }
+    }
+
+    /// Refits the traversal tree in place ([`TravTree::refit`]); no builder tree is kept.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        let done = match &mut self.trees {
+            Trees::Fast(t) => t.refit(triangles),
+            Trees::Watertight(t) => t.refit(triangles),
+        };
+        done.map_err(|e| AccelError::refit(self.name(), e))
     }
 }

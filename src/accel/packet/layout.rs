@@ -2,8 +2,11 @@
 //! nodes (Geimer & Müller §3.3) with each leaf's triangles (at most 8) pre-gathered into
 //! one [`Tri8`] pack of the chosen triangle test.
 
-use crate::accel::bvh;
-use crate::accel::triangle::{Tri8, TriTest};
+use rayon::prelude::*;
+
+use crate::accel::bvh::{self, RefitError};
+use crate::accel::triangle::{Tri8, TriTest, PAD_ID};
+use crate::geometry::{Aabb, Triangle};
 
 /// One node: its box, its skip pointer and its leaf pack. 32 bytes, aligned so that no
 /// node straddles a cache line (Geimer & Müller §3.3).
@@ -33,6 +36,11 @@ pub struct PacketTree<T> {
     pub packs: Vec<Tri8<T>>,
     /// Largest |coordinate| of the tree's bounds (see `mbvh::ray::BoxRay`).
     pub scale: f32,
+    /// Triangles the tree was built over (all ids): a refit must bring as many.
+    pub triangles: usize,
+    /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
+    /// leave exactly these out.
+    pub excluded: Vec<u32>,
 }
 
 impl<T: TriTest> PacketTree<T> {
@@ -66,25 +74,99 @@ impl<T: TriTest> PacketTree<T> {
                 }
             })
             .collect();
-        let b = tree.bounds();
-        let scale = if b.is_empty() {
-            0.0
-        } else {
-            b.min
-                .iter()
-                .chain(&b.max)
-                .fold(0.0f32, |m, x| m.max(x.abs()))
-        };
         PacketTree {
             nodes,
             packs,
-            scale,
+            scale: scale_of(&tree.bounds()),
+            triangles: tree.triangle_count(),
+            excluded: tree.excluded().to_vec(),
         }
+    }
+
+    /// Takes new positions for the same triangles in place, as
+    /// `mbvh::TravTree::refit` does: packs re-gathered by id in parallel, boxes
+    /// recomputed bottom-up with the two subtrees of large nodes as rayon tasks, `scale`
+    /// updated. The child order (larger area first) is kept even where it no longer
+    /// holds; it only affects speed. Refused, tree unchanged, as `bvh::Bvh2::refit` is.
+    pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), RefitError> {
+        bvh::check_refit(&self.excluded, self.triangles, triangles)?;
+        self.packs
+            .par_iter_mut()
+            .with_min_len(64)
+            .for_each(|p| p.regather(triangles));
+        let bounds = if self.nodes.is_empty() {
+            Aabb::EMPTY
+        } else {
+            refit_nodes(&mut self.nodes, 0, &self.packs, triangles)
+        };
+        self.scale = scale_of(&bounds);
+        Ok(())
     }
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
         self.nodes.capacity() * std::mem::size_of::<PacketNode>()
             + self.packs.capacity() * std::mem::size_of::<Tri8<T>>()
+            + self.excluded.capacity() * std::mem::size_of::<u32>()
     }
+}
+
+/// Largest |coordinate| of `b`, 0 when empty.
+fn scale_of(b: &Aabb) -> f32 {
+    if b.is_empty() {
+        0.0
+    } else {
+        b.min
+            .iter()
+            .chain(&b.max)
+            .fold(0.0f32, |m, x| m.max(x.abs()))
+    }
+}
+
+/// Subtrees with at least this many nodes are refitted as separate rayon tasks.
+const PAR_REFIT: usize = 512;
+
+/// Refits the subtree `nodes` (root first, global index `base`, exactly the subtree) and
+/// returns its box.
+fn refit_nodes<T: Send + Sync>(
+    nodes: &mut [PacketNode],
+    base: usize,
+    packs: &[Tri8<T>],
+    triangles: &[Triangle],
+) -> Aabb {
+    let len = nodes.len();
+    let (me, rest) = nodes.split_first_mut().expect("a subtree has a root");
+    let b = if me.pack != 0 {
+        let mut b = Aabb::EMPTY;
+        for &id in &packs[me.pack as usize - 1].ids {
+            if id != PAD_ID {
+                for &v in &triangles[id as usize].v {
+                    b.grow(v);
+                }
+            }
+        }
+        b
+    } else {
+        // The left child follows this node; the right one starts at the left's skip.
+        let left_len = rest[0].skip as usize - (base + 1);
+        let (l, r) = rest.split_at_mut(left_len);
+        let right_base = base + 1 + left_len;
+        let (lb, rb) = if len >= PAR_REFIT && rayon::current_num_threads() > 1 {
+            rayon::join(
+                || refit_nodes(l, base + 1, packs, triangles),
+                || refit_nodes(r, right_base, packs, triangles),
+            )
+        } else {
+            (
+                refit_nodes(l, base + 1, packs, triangles),
+                refit_nodes(r, right_base, packs, triangles),
+            )
+        };
+        let mut b = lb;
+        b.union(&rb);
+        b
+    };
+    me.min = b.min;
+    me.max = b.max;
+    b
 }

@@ -12,7 +12,7 @@ pub mod traverse;
 pub use layout::{PacketNode, PacketTree};
 
 use super::triangle::{MollerTrumbore, TriTest, Watertight};
-use super::{bvh, BuildOptions, Intersector, Precision, Query};
+use super::{bvh, AccelError, BuildOptions, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, Backend, Kernel, Simd};
 use rayon::prelude::*;
@@ -137,5 +137,14 @@ impl Intersector for Bvh2Packet {
             Trees::Fast(t) => t.bytes(),
             Trees::Watertight(t) => t.bytes(),
         }
+    }
+
+    /// Refits the traversal tree in place ([`PacketTree::refit`]); no builder tree is kept.
+    fn refit(&mut self, triangles: &[Triangle]) -> Result<(), AccelError> {
+        let done = match &mut self.trees {
+            Trees::Fast(t) => t.refit(triangles),
+            Trees::Watertight(t) => t.refit(triangles),
+        };
+        done.map_err(|e| AccelError::refit(self.name(), e))
     }
 }

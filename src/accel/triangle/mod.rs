@@ -206,6 +206,28 @@ impl<T: TriTest> Tri8<T> {
         }
     }
 
+    /// Re-reads every real lane from `tris` (indexed by triangle id) through
+    /// [`TriTest::lane_data`]: after new positions for the same triangles, the pack holds
+    /// exactly what [`Tri8::pack`] would store for them, so refitted structures run the
+    /// same leaf test on the same data as fresh ones. Padding lanes stay padding.
+    ///
+    /// # Panics
+    /// If a lane's id is out of range of `tris`.
+    pub fn regather(&mut self, tris: &[Triangle]) {
+        for lane in 0..8 {
+            let id = self.ids[lane];
+            if id == PAD_ID {
+                continue;
+            }
+            let d = T::lane_data(&tris[id as usize]);
+            for (i, point) in d.iter().enumerate() {
+                for (axis, &c) in point.iter().enumerate() {
+                    self.p[i][axis][lane] = c;
+                }
+            }
+        }
+    }
+
     /// Lane `lane`'s data as the scalar test takes it (`p[i][axis]`).
     #[inline(always)]
     pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {

@@ -1,0 +1,186 @@
+//! `auto`: the accelerator expected to finish a job first, counting its preparation.
+//!
+//! A job is described by what is known before anything runs: how many rays, in how many
+//! batches (trace calls), over how many triangles, on how many threads, at which build
+//! quality, and whether the geometry is new (nothing built yet), refittable (a structure
+//! built on earlier positions of the same triangles exists) or already built. Each
+//! candidate's time is predicted by a cost model of the form the cores' algorithms have:
+//!
+//! - a BVH core (`mbvh8`): `build·T` (or `refit·T`, or nothing) `+ R·(r₀ + r₁·log₂T)`;
+//! - DACRT: `pre·T` (the per-frame AABB precompute) `+ B·top·T + R·(d₀ + d₁·log₂T)`: every
+//!   batch partitions the triangles near the root whatever its size (the `top` term),
+//!   which is why DACRT needs large batches, and no structure outlives a batch.
+//!
+//! Times are per thread and divided by the thread count's measured speed-up. The
+//! constants are fitted to `rayd bench --frames` measurements (BENCHMARKS.md, "auto"),
+//! which also reports how often this model picks the fastest strategy and what its wrong
+//! picks cost.
+
+use super::{AccelKind, BuildQuality};
+
+/// What exists of the job's geometry before it starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Geometry {
+    /// Nothing has been built for these positions (a `rayd trace` or `render` run, a new
+    /// scene, a new geometry version with nothing to refit).
+    New,
+    /// A structure built on earlier positions of the same triangles exists: BVH cores can
+    /// refit it instead of rebuilding.
+    Refittable,
+    /// A structure for exactly these positions exists (a cached scene version): BVH cores
+    /// start tracing at once.
+    Built,
+}
+
+/// What `auto` knows about a job.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Job {
+    /// Rays in the whole job.
+    pub rays: usize,
+    /// Trace calls the rays arrive in (a render traces one batch per sample and bounce).
+    pub batches: usize,
+    /// Triangles of the scene.
+    pub triangles: usize,
+    /// Threads of the pool.
+    pub threads: usize,
+    /// Build quality asked for (BVH cores).
+    pub quality: BuildQuality,
+    /// What already exists.
+    pub geometry: Geometry,
+}
+
+impl Job {
+    /// A single batch of `rays` over `triangles` new triangles on `threads` threads.
+    pub fn batch(rays: usize, triangles: usize, threads: usize, quality: BuildQuality) -> Job {
+        Job {
+            rays,
+            batches: 1,
+            triangles,
+            threads,
+            quality,
+            geometry: Geometry::New,
+        }
+    }
+}
+
+/// The fitted constants, in seconds per triangle or per ray on one thread.
+#[derive(Clone, Copy, Debug)]
+struct Model {
+    /// `mbvh8` build per triangle, by quality (fast, sah, sbvh).
+    build: [f64; 3],
+    /// `mbvh8` refit per triangle.
+    refit: f64,
+    /// `mbvh8` trace per ray: base and per log₂ T.
+    bvh_ray: [f64; 2],
+    /// `dacrt-sampled` precompute per triangle.
+    dacrt_pre: f64,
+    /// `dacrt-sampled` per batch per triangle (the partitions near the root).
+    dacrt_top: f64,
+    /// `dacrt-sampled` per ray: base and per log₂ T.
+    dacrt_ray: [f64; 2],
+    /// Speed-up on 2 threads, for building and tracing (BVH) and for DACRT; more threads
+    /// extrapolate it as `threads^log₂(speed-up)`.
+    speedup2: [f64; 2],
+}
+
+const MODEL: Model = Model {
+    build: [0.60e-6, 1.60e-6, 3.00e-6],
+    refit: 0.06e-6,
+    bvh_ray: [0.05e-6, 0.010e-6],
+    dacrt_pre: 0.10e-6,
+    dacrt_top: 0.70e-6,
+    dacrt_ray: [0.10e-6, 0.014e-6],
+    speedup2: [1.8, 1.6],
+};
+
+fn speedup(s2: f64, threads: usize) -> f64 {
+    (threads.max(1) as f64).powf(s2.log2())
+}
+
+fn quality_index(q: BuildQuality) -> usize {
+    match q {
+        BuildQuality::Fast => 0,
+        BuildQuality::Sah => 1,
+        BuildQuality::Sbvh => 2,
+    }
+}
+
+/// Predicted seconds of `kind` (one of `mbvh8`, `dacrt-sampled`, `brute`) for `job`;
+/// `None` for kinds the model does not cover.
+pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
+    let m = &MODEL;
+    let t = job.triangles.max(1) as f64;
+    let r = job.rays as f64;
+    let lg = t.log2().max(1.0);
+    match kind {
+        AccelKind::Mbvh8 => {
+            let prep = match job.geometry {
+                Geometry::New => m.build[quality_index(job.quality)] * t,
+                Geometry::Refittable => m.refit * t,
+                Geometry::Built => 0.0,
+            };
+            let trace = r * (m.bvh_ray[0] + m.bvh_ray[1] * lg);
+            Some((prep + trace) / speedup(m.speedup2[0], job.threads))
+        }
+        AccelKind::DacrtSampled => {
+            let prep = m.dacrt_pre * t;
+            let top = job.batches.max(1) as f64 * m.dacrt_top * t;
+            let trace = r * (m.dacrt_ray[0] + m.dacrt_ray[1] * lg);
+            Some((prep + top + trace) / speedup(m.speedup2[1], job.threads))
+        }
+        // Every ray against every triangle, eight at a time: only for a handful.
+        AccelKind::Brute => Some(r * t * 2.0e-9 / speedup(m.speedup2[0], job.threads)),
+        _ => None,
+    }
+}
+
+/// The accelerator `auto` runs for `job`: the candidate with the smallest predicted time.
+pub fn choose(job: &Job) -> AccelKind {
+    let mut best = (AccelKind::Mbvh8, f64::INFINITY);
+    for k in [AccelKind::Brute, AccelKind::DacrtSampled, AccelKind::Mbvh8] {
+        if let Some(s) = predict(k, job) {
+            if s < best.1 {
+                best = (k, s);
+            }
+        }
+    }
+    best.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tiny_scene_goes_to_brute_and_a_cached_structure_to_the_bvh() {
+        assert_eq!(
+            choose(&Job::batch(1000, 4, 1, BuildQuality::Sah)),
+            AccelKind::Brute
+        );
+        let mut job = Job::batch(1 << 20, 100_000, 2, BuildQuality::Sah);
+        job.geometry = Geometry::Built;
+        assert_eq!(choose(&job), AccelKind::Mbvh8);
+    }
+
+    #[test]
+    fn predictions_grow_with_the_work() {
+        for k in [AccelKind::Mbvh8, AccelKind::DacrtSampled] {
+            let small = predict(k, &Job::batch(1000, 1000, 1, BuildQuality::Sah)).unwrap();
+            let more_rays = predict(k, &Job::batch(100_000, 1000, 1, BuildQuality::Sah)).unwrap();
+            let more_tris = predict(k, &Job::batch(1000, 100_000, 1, BuildQuality::Sah)).unwrap();
+            let threads = predict(k, &Job::batch(1000, 1000, 2, BuildQuality::Sah)).unwrap();
+            assert!(
+                more_rays > small && more_tris > small && threads < small,
+                "{k:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn many_batches_turn_dacrt_down() {
+        let mut job = Job::batch(1 << 20, 100_000, 1, BuildQuality::Sah);
+        let one = predict(AccelKind::DacrtSampled, &job).unwrap();
+        job.batches = 64;
+        assert!(predict(AccelKind::DacrtSampled, &job).unwrap() > one);
+    }
+}
