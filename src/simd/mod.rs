@@ -59,6 +59,7 @@ use std::sync::OnceLock;
 
 #[cfg(target_arch = "x86_64")]
 pub mod avx2;
+pub mod build4;
 pub mod scalar;
 #[cfg(target_arch = "x86_64")]
 pub mod sse;

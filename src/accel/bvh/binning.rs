@@ -82,10 +82,14 @@ impl BinMap {
     /// lane, so the results are identical).
     #[inline(always)]
     pub fn centroid_bins(&self, r: &Ref) -> [usize; 3] {
-        let k: [u32; 4] = std::array::from_fn(|j| {
-            let c = r.lo[j] * 0.5 + r.hi[j] * 0.5;
-            to_bin((c - self.lo[j]) * self.scale[j], self.last)
-        });
+        let k = crate::simd::build4::centroid_bins(
+            &r.lo,
+            &r.hi,
+            &self.lo,
+            &self.scale,
+            self.last,
+            BINS as u32 - 1,
+        );
         [k[0] as usize, k[1] as usize, k[2] as usize]
     }
 
@@ -640,36 +644,37 @@ fn partition_bounds<const CENT: bool>(
     refs: &mut [Ref],
     left: impl Fn(&Ref) -> bool,
 ) -> (usize, SideBounds) {
-    let mut acc = [[B4::EMPTY; 2]; 2];
-    let mut add = |side: usize, r: &Ref| {
-        let b = r.b4();
-        acc[side][0].grow(&b);
+    // One accumulator per side and kind, as plain locals: indexing an array of them by
+    // side kept them in memory (a load and a store per reference).
+    let (mut lb, mut lc, mut rb, mut rc) = (B4::EMPTY, B4::EMPTY, B4::EMPTY, B4::EMPTY);
+    #[inline(always)]
+    fn add<const CENT: bool>(b: &mut B4, c: &mut B4, r: &Ref) {
+        b.grow(&r.b4());
         if CENT {
-            let c: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
-            acc[side][1].grow(&B4::point(c));
+            c.grow_centroid(r);
         }
-    };
+    }
     let mut i = 0;
     let mut j = refs.len();
     loop {
         while i < j && left(&refs[i]) {
-            add(0, &refs[i]);
+            add::<CENT>(&mut lb, &mut lc, &refs[i]);
             i += 1;
         }
         while i < j && !left(&refs[j - 1]) {
-            add(1, &refs[j - 1]);
+            add::<CENT>(&mut rb, &mut rc, &refs[j - 1]);
             j -= 1;
         }
         if i >= j {
             break;
         }
         refs.swap(i, j - 1);
-        add(0, &refs[i]);
-        add(1, &refs[j - 1]);
+        add::<CENT>(&mut lb, &mut lc, &refs[i]);
+        add::<CENT>(&mut rb, &mut rc, &refs[j - 1]);
         i += 1;
         j -= 1;
     }
-    (i, acc.map(|[b, c]| (b.aabb(), c.aabb())))
+    (i, [(lb.aabb(), lc.aabb()), (rb.aabb(), rc.aabb())])
 }
 
 /// Makes the two halves once the left references are at `..nl` and the right ones at

@@ -20,6 +20,7 @@ use super::morton::{self, MortonSplitter};
 use super::{is_traceable, DEPTH_LIMIT};
 use crate::accel::BuildQuality;
 use crate::geometry::{Aabb, Triangle};
+use crate::simd::build4;
 
 /// Candidates with at least this many references evaluate their two halves in parallel.
 const PAR_EVAL: u32 = 1 << 14;
@@ -130,10 +131,19 @@ impl B4 {
     /// Grows the box by `o`.
     #[inline(always)]
     pub fn grow(&mut self, o: &B4) {
-        for k in 0..4 {
-            self.lo[k] = fmin(self.lo[k], o.lo[k]);
-            self.hi[k] = fmax(self.hi[k], o.hi[k]);
-        }
+        // Lane-wise `fmin`/`fmax` in one instruction each: the compiler's own
+        // vectorisation of the per-lane form shuffled lanes around in the partition loop.
+        self.lo = build4::min4(&self.lo, &o.lo);
+        self.hi = build4::max4(&self.hi, &o.hi);
+    }
+
+    /// Grows the box by the centroid of `r`'s box (`lo·0.5 + hi·0.5` per lane, as
+    /// [`Ref::centroid`]).
+    #[inline(always)]
+    pub fn grow_centroid(&mut self, r: &Ref) {
+        let m = build4::mid4(&r.lo, &r.hi);
+        self.lo = build4::min4(&self.lo, &m);
+        self.hi = build4::max4(&self.hi, &m);
     }
 
     /// The intersection, or `None` when it is empty.
@@ -683,75 +693,62 @@ pub(crate) struct Built<const N: usize> {
 /// References of the traceable triangles, the ids of the others, and the bounds of the
 /// references' boxes and centroids.
 fn make_refs(tris: &[Triangle]) -> (Vec<Ref>, Vec<u32>, Aabb, Aabb) {
-    // Two passes over chunks: which triangles go in (and how many per chunk), then the
-    // references written straight into their final slots, with the bounds on the way.
+    // One pass over chunks writes a reference for every triangle into slot `id`, with
+    // the bounds on the way; untraceable triangles are marked (scratch word 1) and left
+    // out of the bounds. Nearly every scene has none, and then that is all; otherwise
+    // the marked references are squeezed out in order.
     const CHUNK: usize = 1 << 12;
-    let flags: Vec<(Vec<bool>, usize)> = tris
-        .par_chunks(CHUNK)
-        .map(|c| {
-            let f: Vec<bool> = c.iter().map(is_traceable).collect();
-            let n = f.iter().filter(|&&x| x).count();
-            (f, n)
-        })
-        .collect();
-    let total: usize = flags.iter().map(|(_, n)| n).sum();
-    let mut refs = vec![Ref::default(); total];
-    let mut jobs = Vec::with_capacity(flags.len());
-    let mut rest: &mut [Ref] = &mut refs;
-    for (ci, (f, n)) in flags.iter().enumerate() {
-        let (mine, tail) = std::mem::take(&mut rest).split_at_mut(*n);
-        rest = tail;
-        jobs.push((ci, f, mine));
-    }
-    let (bounds, cent) = jobs
-        .into_par_iter()
-        .map(|(ci, f, out)| {
+    let mut refs = vec![Ref::default(); tris.len()];
+    let (bounds, cent, bad) = refs
+        .par_chunks_mut(CHUNK)
+        .zip(tris.par_chunks(CHUNK))
+        .enumerate()
+        .map(|(ci, (out, tc))| {
             let mut b = B4::EMPTY;
             let mut c = B4::EMPTY;
+            let mut bad = 0usize;
             let base = ci * CHUNK;
-            let mut o = out.iter_mut();
-            for (i, t) in tris[base..base + f.len()].iter().enumerate() {
-                if !f[i] {
+            for (i, (r, t)) in out.iter_mut().zip(tc).enumerate() {
+                let id = f32::from_bits((base + i) as u32);
+                if !is_traceable(t) {
+                    r.lo[3] = id;
+                    r.set_aux(1);
+                    bad += 1;
                     continue;
                 }
                 let mut tb = B4::point([t.v[0][0], t.v[0][1], t.v[0][2], 0.0]);
                 for p in &t.v[1..] {
                     tb.grow(&B4::point([p[0], p[1], p[2], 0.0]));
                 }
-                let r = o.next().expect("counted");
                 *r = Ref {
-                    lo: [
-                        tb.lo[0],
-                        tb.lo[1],
-                        tb.lo[2],
-                        f32::from_bits((base + i) as u32),
-                    ],
+                    lo: [tb.lo[0], tb.lo[1], tb.lo[2], id],
                     hi: [tb.hi[0], tb.hi[1], tb.hi[2], 0.0],
                 };
                 b.grow(&tb);
                 let m: [f32; 4] = std::array::from_fn(|k| tb.lo[k] * 0.5 + tb.hi[k] * 0.5);
                 c.grow(&B4::point(m));
             }
-            (b, c)
+            (b, c, bad)
         })
         .reduce(
-            || (B4::EMPTY, B4::EMPTY),
+            || (B4::EMPTY, B4::EMPTY, 0),
             |mut x, y| {
                 x.0.grow(&y.0);
                 x.1.grow(&y.1);
-                x
+                (x.0, x.1, x.2 + y.2)
             },
         );
-    let excluded: Vec<u32> = flags
-        .iter()
-        .enumerate()
-        .flat_map(|(ci, (f, _))| {
-            f.iter()
-                .enumerate()
-                .filter(|(_, &x)| !x)
-                .map(move |(i, _)| (ci * CHUNK + i) as u32)
-        })
-        .collect();
+    let mut excluded = Vec::with_capacity(bad);
+    if bad > 0 {
+        refs.retain(|r| {
+            if r.aux() == 1 {
+                excluded.push(r.id());
+                false
+            } else {
+                true
+            }
+        });
+    }
     (refs, excluded, bounds.aabb(), cent.aabb())
 }
 
@@ -762,8 +759,7 @@ pub(crate) fn bounds_of(refs: &[Ref]) -> (Aabb, Aabb) {
         let mut c = B4::EMPTY;
         for r in refs {
             b.grow(&r.b4());
-            let p: [f32; 4] = std::array::from_fn(|k| r.lo[k] * 0.5 + r.hi[k] * 0.5);
-            c.grow(&B4::point(p));
+            c.grow_centroid(r);
         }
         (b.aabb(), c.aabb())
     }

@@ -59,12 +59,15 @@ fn code(r: &Ref, lo: &[f32; 3], scale: &[f32; 3]) -> u32 {
 /// carry the reference's index and keep equal codes in index order).
 fn radix_sort(keys: &mut Vec<u64>) {
     let mut tmp = vec![0u64; keys.len()];
-    for pass in 0..3 {
-        let shift = 32 + 10 * pass;
-        let mut count = [0usize; 1024];
-        for &k in keys.iter() {
-            count[((k >> shift) & 1023) as usize] += 1;
+    // The three digits' histograms in one pass over the keys.
+    let mut counts = [[0usize; 1024]; 3];
+    for &k in keys.iter() {
+        for (pass, count) in counts.iter_mut().enumerate() {
+            count[((k >> (32 + 10 * pass)) & 1023) as usize] += 1;
         }
+    }
+    for (pass, count) in counts.iter_mut().enumerate() {
+        let shift = 32 + 10 * pass;
         if count.contains(&keys.len()) {
             continue;
         }
@@ -149,8 +152,21 @@ fn link(
     let (me, rn) = rest
         .split_first_mut()
         .expect("a range of two or more has a node");
-    let mut left = move || link(&codes[..s], &refs[..s], ln, base, parallel);
-    let mut right = move || link(&codes[s..], &refs[s..], rn, base + s as u32, parallel);
+    // Single references are answered here rather than by a call (half the calls).
+    let mut left = move || {
+        if s == 1 {
+            (refs[0].aabb(), NO_SPLIT)
+        } else {
+            link(&codes[..s], &refs[..s], ln, base, parallel)
+        }
+    };
+    let mut right = move || {
+        if n - s == 1 {
+            (refs[n - 1].aabb(), NO_SPLIT)
+        } else {
+            link(&codes[s..], &refs[s..], rn, base + s as u32, parallel)
+        }
+    };
     let ((lb, ls), (rb, rs)) = if parallel && n >= PAR_LINK {
         rayon::join(left, right)
     } else {

@@ -104,6 +104,10 @@ pub struct TravTree<const N: usize, T> {
 
 impl<const N: usize, T: TriTest> TravTree<N, T> {
     /// Converts the builder's tree.
+    ///
+    /// Two passes: the nodes are copied and every leaf gets its place in lane space
+    /// (sequential, integers only), then the packs are filled straight from the
+    /// builder's multi-triangles, each pack on its own (in parallel on the caller's pool).
     pub fn from_mbvh(tree: &bvh::Mbvh<N>) -> Self {
         let src = tree.nodes();
         let mts = tree.multi_tris();
@@ -112,11 +116,9 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         // most 8 triangles never straddles two packs, a larger one starts a pack. Leaves
         // come in node order, so small sibling leaves share packs. Lanes 0..8 (pack 0)
         // are padding, which unused node lanes point at (see `TravNode::child`).
-        let mut lanes: Vec<(u32, Triangle)> = Vec::with_capacity(mts.len() * N + 8);
-        let mut bounds: Vec<usize> = vec![0]; // lane counts at which a pack ends early
+        let mut leaves: Vec<LeafPlace> = Vec::with_capacity(mts.len());
         let mut pos = 8usize;
         let empty = EMPTY_LANE;
-        let mut leaf: Vec<(u32, Triangle)> = Vec::with_capacity(2 * N);
         for n in src {
             let mut planes = [[0.0f32; N]; 6];
             planes[..3].copy_from_slice(&n.min);
@@ -126,25 +128,23 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 if *c == Child::EMPTY {
                     *c = empty;
                 } else if let Child::Leaf { first, count } = Child::decode(*c) {
-                    leaf.clear();
-                    for mt in &mts[first as usize..(first + count) as usize] {
-                        for lane in 0..mt.lanes() {
-                            leaf.push((mt.ids[lane], mt.get(lane)));
-                        }
-                    }
-                    let k = leaf.len();
+                    let k: usize = mts[first as usize..(first + count) as usize]
+                        .iter()
+                        .map(|mt| mt.lanes())
+                        .sum();
                     assert!((1..=16).contains(&k), "leaf of {k} triangles");
                     if pos % 8 + k > 8 && pos % 8 != 0 {
-                        bounds.push(lanes.len());
                         pos = pos.next_multiple_of(8);
                     }
                     *c = leaf_id(pos, k);
+                    leaves.push(LeafPlace {
+                        first,
+                        count,
+                        start: pos as u32,
+                        n: k as u32,
+                    });
+                    // A leaf of more than 8 starts a pack, so its tail starts the next.
                     pos += k;
-                    lanes.extend_from_slice(&leaf);
-                    if k > 8 {
-                        // The tail starts a pack of its own.
-                        bounds.push(lanes.len() - (k - 8));
-                    }
                 }
             }
             nodes.push(TravNode {
@@ -153,8 +153,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 pad: [0; N],
             });
         }
-        let packs = pack_lanes(&lanes, &bounds);
-        debug_assert_eq!(packs.len(), pos.div_ceil(8));
+        let packs = fill_packs(mts, &leaves, pos.div_ceil(8));
         TravTree {
             nodes,
             packs,
@@ -289,20 +288,62 @@ fn refit_nodes<const N: usize, T: Send + Sync>(
     all
 }
 
-/// Makes the packs: pack 0 is padding; then each pack takes the next lanes up to eight or
-/// up to the next early end in `bounds` (lane counts, ascending), whichever comes first.
-fn pack_lanes<T: TriTest>(lanes: &[(u32, Triangle)], bounds: &[usize]) -> Vec<Pack<T>> {
-    let mut packs = vec![Pack(Tri8::pack(&[]))];
-    let mut at = 0;
-    let mut ends = bounds.iter().copied().filter(|&b| b > 0).peekable();
-    while at < lanes.len() {
-        while ends.next_if(|&b| b <= at).is_some() {}
-        let end = (at + 8)
-            .min(lanes.len())
-            .min(ends.peek().copied().unwrap_or(usize::MAX));
-        packs.push(Pack(Tri8::pack(&lanes[at..end])));
-        at = end;
-    }
+/// Where one leaf's triangles go: `n` triangles from multi-triangles
+/// `first .. first + count` to global lanes `start .. start + n`.
+#[derive(Clone, Copy, Debug)]
+struct LeafPlace {
+    first: u32,
+    count: u32,
+    start: u32,
+    n: u32,
+}
+
+/// Packs per parallel task of [`fill_packs`].
+const FILL_CHUNK: usize = 256;
+
+/// Makes `total` packs, all padding (pack 0 stays so), and writes each leaf's triangles
+/// into its lanes. Leaves are in ascending lane order; each task fills a run of packs
+/// with the lanes of the leaves that overlap it, so no pack is written by two tasks.
+fn fill_packs<const N: usize, T: TriTest>(
+    mts: &[bvh::MultiTri<N>],
+    leaves: &[LeafPlace],
+    total: usize,
+) -> Vec<Pack<T>> {
+    let mut packs = vec![Pack(Tri8::<T>::pack(&[])); total.max(1)];
+    packs
+        .par_chunks_mut(FILL_CHUNK)
+        .enumerate()
+        .for_each(|(ci, chunk)| {
+            let lo = ci * FILL_CHUNK * 8;
+            let hi = lo + chunk.len() * 8;
+            let from = leaves.partition_point(|l| (l.start + l.n) as usize <= lo);
+            for l in &leaves[from..] {
+                if l.start as usize >= hi {
+                    break;
+                }
+                let mut g = l.start as usize;
+                for mt in &mts[l.first as usize..(l.first + l.count) as usize] {
+                    for lane in 0..N {
+                        let id = mt.ids[lane];
+                        if id == bvh::MultiTri::<N>::PAD_ID {
+                            break;
+                        }
+                        if (lo..hi).contains(&g) {
+                            let d = T::lane_data(&mt.get(lane));
+                            let p = &mut chunk[(g - lo) / 8].0;
+                            let j = g % 8;
+                            for (i, point) in d.iter().enumerate() {
+                                for (axis, &c) in point.iter().enumerate() {
+                                    p.p[i][axis][j] = c;
+                                }
+                            }
+                            p.ids[j] = id;
+                        }
+                        g += 1;
+                    }
+                }
+            }
+        });
     packs
 }
 
