@@ -349,3 +349,41 @@ fn bench_frames_refuses_what_it_cannot_measure() {
     ]);
     assert!(!ok && err.contains("unknown motion 'spin'"), "{err}");
 }
+
+#[test]
+fn mbvh_statistics_are_printed_by_info_and_bench() {
+    let (ok, j, err) = rayd(&["info", &sample("Fox.glb"), "--accel", "mbvh8"]);
+    assert!(ok, "{err}");
+    let st = &j["accel"]["stats"];
+    assert_eq!(st["triangles"], 576, "{st}");
+    assert_eq!(st["references"], 576, "{st}");
+    assert!(st["nodes"].as_u64().unwrap() > 1, "{st}");
+    let util = st["pack_utilization"].as_f64().unwrap();
+    assert!(util > 0.5 && util <= 1.0, "{st}");
+    let (ok, j, err) = rayd(&[
+        "bench",
+        &sample("Fox.glb"),
+        "--accel",
+        "mbvh8,dacrt",
+        "--sets",
+        "primary,ao",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--runs",
+        "1",
+        "--threads",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    for m in j["scenes"][0]["results"].as_array().unwrap() {
+        let counted = m["accel"] == "mbvh8" && m["set"] == "primary";
+        assert_eq!(!m["steps"].is_null(), counted, "{m}");
+        if counted {
+            // Every ray visits the root; some test a leaf pack (every ray hits).
+            assert!(m["steps"]["nodes_per_ray"].as_f64().unwrap() >= 1.0, "{m}");
+            assert!(m["steps"]["packs_per_ray"].as_f64().unwrap() >= 1.0, "{m}");
+        }
+    }
+}

@@ -70,27 +70,36 @@ struct Model {
     build: [f64; 3],
     /// `mbvh8` refit per triangle.
     refit: f64,
-    /// `mbvh8` trace per ray: base and per log₂ T.
-    bvh_ray: [f64; 2],
+    /// `mbvh8` trace per ray per log₂ T, on a fresh tree.
+    bvh_ray: f64,
+    /// How much slower a refitted tree traces than a fresh one.
+    refit_slowdown: f64,
     /// `dacrt-sampled` precompute per triangle.
     dacrt_pre: f64,
     /// `dacrt-sampled` per batch per triangle (the partitions near the root).
     dacrt_top: f64,
-    /// `dacrt-sampled` per ray: base and per log₂ T.
-    dacrt_ray: [f64; 2],
-    /// Speed-up on 2 threads, for building and tracing (BVH) and for DACRT; more threads
+    /// `dacrt-sampled` per ray per log₂ T.
+    dacrt_ray: f64,
+    /// Speed-up on 2 threads of the BVH build, the BVH trace and DACRT; more threads
     /// extrapolate it as `threads^log₂(speed-up)`.
-    speedup2: [f64; 2],
+    speedup2: [f64; 3],
 }
 
+/// Fitted to `rayd bench --frames 4 --build fast` on dragon-100k (twist) and BrainStem
+/// (animation), 64K–4M rays per frame, primary and diffuse2 rays, 1 and 2 threads, and
+/// to the build-only runs of BENCHMARKS.md §4 for `sah` and `sbvh` (2-core Zen 3; medians
+/// over the runs): the BVH and DACRT trace about equally per ray once a batch is large,
+/// and DACRT's per-batch partitioning near the root costs about what a `fast` build does,
+/// so DACRT wins where a `sah` or `sbvh` build would not be repaid.
 const MODEL: Model = Model {
-    build: [0.60e-6, 1.60e-6, 3.00e-6],
-    refit: 0.06e-6,
-    bvh_ray: [0.05e-6, 0.010e-6],
-    dacrt_pre: 0.10e-6,
-    dacrt_top: 0.70e-6,
-    dacrt_ray: [0.10e-6, 0.014e-6],
-    speedup2: [1.8, 1.6],
+    build: [0.19e-6, 0.70e-6, 2.2e-6],
+    refit: 0.038e-6,
+    bvh_ray: 15.0e-9,
+    refit_slowdown: 1.15,
+    dacrt_pre: 0.055e-6,
+    dacrt_top: 0.35e-6,
+    dacrt_ray: 13.5e-9,
+    speedup2: [1.5, 1.8, 1.6],
 };
 
 fn speedup(s2: f64, threads: usize) -> f64 {
@@ -114,22 +123,25 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
     let lg = t.log2().max(1.0);
     match kind {
         AccelKind::Mbvh8 => {
-            let prep = match job.geometry {
-                Geometry::New => m.build[quality_index(job.quality)] * t,
-                Geometry::Refittable => m.refit * t,
-                Geometry::Built => 0.0,
+            let (prep, slow) = match job.geometry {
+                Geometry::New => (m.build[quality_index(job.quality)] * t, 1.0),
+                Geometry::Refittable => (m.refit * t, m.refit_slowdown),
+                Geometry::Built => (0.0, 1.0),
             };
-            let trace = r * (m.bvh_ray[0] + m.bvh_ray[1] * lg);
-            Some((prep + trace) / speedup(m.speedup2[0], job.threads))
+            let trace = r * m.bvh_ray * lg * slow;
+            Some(
+                prep / speedup(m.speedup2[0], job.threads)
+                    + trace / speedup(m.speedup2[1], job.threads),
+            )
         }
         AccelKind::DacrtSampled => {
             let prep = m.dacrt_pre * t;
             let top = job.batches.max(1) as f64 * m.dacrt_top * t;
-            let trace = r * (m.dacrt_ray[0] + m.dacrt_ray[1] * lg);
-            Some((prep + top + trace) / speedup(m.speedup2[1], job.threads))
+            let trace = r * m.dacrt_ray * lg;
+            Some((prep + top + trace) / speedup(m.speedup2[2], job.threads))
         }
         // Every ray against every triangle, eight at a time: only for a handful.
-        AccelKind::Brute => Some(r * t * 2.0e-9 / speedup(m.speedup2[0], job.threads)),
+        AccelKind::Brute => Some(r * t * 2.0e-9 / speedup(m.speedup2[1], job.threads)),
         _ => None,
     }
 }

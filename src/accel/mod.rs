@@ -239,6 +239,14 @@ pub trait Intersector: Send + Sync {
         Err(AccelError::refit(self.name(), bvh::RefitError::Unsupported))
     }
 
+    /// Traversal steps and triangle tests per `closest` ray over `rays` (Áfra 2013,
+    /// Table 4), for cores whose traversal counts them; run on the calling thread, untimed,
+    /// so that `rayd bench` can print them beside the rates. `None` for the others.
+    fn count_steps(&self, rays: &[Ray]) -> Option<serde_json::Value> {
+        let _ = rays;
+        None
+    }
+
     /// Structure statistics (node counts, SIMD utilisation, bytes per triangle…) for
     /// `rayd info --accel` and `rayd bench`; `None` for cores without a structure.
     fn stats(&self) -> Option<serde_json::Value> {

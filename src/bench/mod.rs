@@ -133,6 +133,9 @@ pub struct Measurement {
     pub agreement: f64,
     /// Rays that do not match.
     pub disagreements: usize,
+    /// Traversal steps and triangle tests per ray, counted on up to the set's first
+    /// 65,536 rays (`closest` sets of cores that count them; measured once, untimed).
+    pub steps: Option<serde_json::Value>,
 }
 
 /// One accelerator × thread count build.
@@ -384,6 +387,14 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                             times.push(t0.elapsed().as_secs_f64());
                         }
                         let bad = disagreements(set, &hits, &flags);
+                        let steps = if set.kind == SetKind::Ao
+                            || scene_report.results.iter().any(|m: &Measurement| {
+                                m.accel == accel.name() && m.set == set.kind.name()
+                            }) {
+                            None
+                        } else {
+                            accel.count_steps(&set.rays[..set.rays.len().min(1 << 16)])
+                        };
                         let secs = median(&times);
                         let m = Measurement {
                             accel: accel.name().into(),
@@ -403,6 +414,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                                 1.0 - bad as f64 / set.rays.len() as f64
                             },
                             disagreements: bad,
+                            steps,
                         };
                         eprintln!(
                             "bench:   {:<14} {:>2} thr  {:<9} {:>8.3} Mray/s  agree {:.6}",

@@ -59,6 +59,79 @@ pub fn render_table(report: &BenchReport) -> String {
             }
             let _ = writeln!(s, " {:.6} |", worst);
         }
+        let mut shown: Vec<&str> = Vec::new();
+        for b in &sc.builds {
+            let Some(st) = &b.stats else { continue };
+            if shown.contains(&b.accel.as_str()) {
+                continue;
+            }
+            if shown.is_empty() {
+                let _ = writeln!(s, "\nstructure: multi-nodes, node SIMD utilisation, packs, pack lane utilisation, SAH cost, depth, bytes per triangle\n");
+                let _ = writeln!(
+                    s,
+                    "| accel | nodes | node util | packs | pack util | SAH | depth | B/tri |"
+                );
+                let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|");
+            }
+            shown.push(&b.accel);
+            let f = |k: &str| st[k].as_f64().unwrap_or(f64::NAN);
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.3} | {} | {:.3} | {:.1} | {} | {:.1} |",
+                b.accel,
+                f("nodes"),
+                f("node_utilization"),
+                f("packs"),
+                f("pack_utilization"),
+                f("sah_cost"),
+                f("max_depth"),
+                f("bytes_per_triangle")
+            );
+        }
+        let counted: Vec<&super::Measurement> =
+            sc.results.iter().filter(|m| m.steps.is_some()).collect();
+        if !counted.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nper ray (first 65,536 rays of each set): multi-nodes visited / 8-lane triangle packs tested\n"
+            );
+            let _ = write!(s, "| accel |");
+            for n in &set_names {
+                let _ = write!(s, " {n} |");
+            }
+            let _ = writeln!(s);
+            let _ = write!(s, "|---|");
+            for _ in &set_names {
+                let _ = write!(s, "---:|");
+            }
+            let _ = writeln!(s);
+            let mut accels: Vec<&str> = Vec::new();
+            for m in &counted {
+                if !accels.contains(&m.accel.as_str()) {
+                    accels.push(&m.accel);
+                }
+            }
+            for a in accels {
+                let _ = write!(s, "| {a} |");
+                for n in &set_names {
+                    match counted.iter().find(|m| m.accel == a && m.set == *n) {
+                        Some(m) => {
+                            let st = m.steps.as_ref().expect("filtered");
+                            let _ = write!(
+                                s,
+                                " {:.1} / {:.1} |",
+                                st["nodes_per_ray"].as_f64().unwrap_or(0.0),
+                                st["packs_per_ray"].as_f64().unwrap_or(0.0)
+                            );
+                        }
+                        None => {
+                            let _ = write!(s, " – |");
+                        }
+                    }
+                }
+                let _ = writeln!(s);
+            }
+        }
     }
     s
 }

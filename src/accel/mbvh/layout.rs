@@ -361,3 +361,85 @@ fn depth<const N: usize>(nodes: &[bvh::WideNode<N>]) -> usize {
     }
     deepest
 }
+
+/// Half the surface area of the box of lane `lane` of `node` (0 for an empty lane).
+fn lane_half_area<const N: usize>(node: &TravNode<N>, lane: usize) -> f64 {
+    let e =
+        [0, 1, 2].map(|k| (node.planes[k + 3][lane] as f64 - node.planes[k][lane] as f64).max(0.0));
+    e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+}
+
+impl<const N: usize, T: TriTest> TravTree<N, T> {
+    /// Áfra 2013's Table 2 and 4 statistics of the tree as it is now (after refits, of
+    /// the refitted boxes), computed from the traversal layout so that building never
+    /// pays for them: multi-nodes, leaves, node and pack SIMD utilisation, SAH cost
+    /// (`Σ A(node)/A(root) + Σ_leaves packs·A(leaf)/A(root)`, K_T = K_I = 1, where a
+    /// node's area is its children's union), depth and bytes per triangle.
+    pub fn stats(&self) -> serde_json::Value {
+        let empty = leaf_id(0, 1);
+        let (mut lanes_used, mut leaves, mut leaf_tris, mut leaf_packs) =
+            (0usize, 0usize, 0usize, 0usize);
+        let mut sah = 0.0f64;
+        let union_area = |n: &TravNode<N>| {
+            let mut b = [
+                f32::INFINITY,
+                f32::INFINITY,
+                f32::INFINITY,
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+                f32::NEG_INFINITY,
+            ];
+            for lane in 0..N {
+                if n.child[lane] == empty {
+                    continue;
+                }
+                for k in 0..3 {
+                    b[k] = b[k].min(n.planes[k][lane]);
+                    b[k + 3] = b[k + 3].max(n.planes[k + 3][lane]);
+                }
+            }
+            let e = [0, 1, 2].map(|k| (b[k + 3] as f64 - b[k] as f64).max(0.0));
+            e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+        };
+        let root = self.nodes.first().map_or(0.0, union_area);
+        let inv = if root > 0.0 { 1.0 / root } else { 0.0 };
+        for n in &self.nodes {
+            sah += union_area(n) * inv;
+            for lane in 0..N {
+                let c = n.child[lane];
+                if c == empty {
+                    continue;
+                }
+                lanes_used += 1;
+                if c < 0 {
+                    let (start, count) = leaf_lanes(c);
+                    let packs = (start % 8 + count).div_ceil(8);
+                    leaves += 1;
+                    leaf_tris += count;
+                    leaf_packs += packs;
+                    sah += packs as f64 * lane_half_area(n, lane) * inv;
+                }
+            }
+        }
+        let real_packs = self.packs.len().saturating_sub(1);
+        let live = self.triangles - self.excluded.len();
+        let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
+        serde_json::json!({
+            "width": N,
+            "triangles": self.triangles,
+            "excluded": self.excluded.len(),
+            "references": leaf_tris,
+            "nodes": self.nodes.len(),
+            "leaves": leaves,
+            "node_utilization": ratio(lanes_used as f64, (self.nodes.len() * N) as f64),
+            "packs": real_packs,
+            "pack_utilization": ratio(leaf_tris as f64, (real_packs * 8) as f64),
+            "packs_per_leaf": ratio(leaf_packs as f64, leaves as f64),
+            "avg_leaf_triangles": ratio(leaf_tris as f64, leaves as f64),
+            "sah_cost": sah,
+            "max_depth": self.depth,
+            "bytes": self.bytes(),
+            "bytes_per_triangle": ratio(self.bytes() as f64, live.max(1) as f64),
+        })
+    }
+}

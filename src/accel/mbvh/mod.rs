@@ -99,6 +99,29 @@ fn checked<const N: usize, T>(t: TravTree<N, T>) -> TravTree<N, T> {
     t
 }
 
+/// Counts the steps of `closest` over some rays, on one thread.
+struct Counted<'a, const N: usize, T> {
+    tree: &'a TravTree<N, T>,
+    rays: &'a [Ray],
+}
+
+impl<const N: usize, T: TriTest> Kernel for Counted<'_, N, T>
+where
+    Lanes<N>: SlabTest<N>,
+{
+    type Output = traverse::Counts;
+
+    #[inline(always)]
+    fn run<S: Simd>(self, s: S) -> traverse::Counts {
+        let mut stack = [0u64; STACK];
+        let mut c = traverse::Counts::default();
+        for ray in self.rays {
+            traverse::closest_counted(s, self.tree, ray, &mut stack, &mut c);
+        }
+        c
+    }
+}
+
 /// What a chunk of rays should produce.
 enum Out<'a> {
     Hits(Query, &'a mut [Hit]),
@@ -189,6 +212,27 @@ where
             Trees::Fast(t) => t.bytes(),
             Trees::Watertight(t) => t.bytes(),
         }
+    }
+
+    fn stats(&self) -> Option<serde_json::Value> {
+        Some(match &self.trees {
+            Trees::Fast(t) => t.stats(),
+            Trees::Watertight(t) => t.stats(),
+        })
+    }
+
+    fn count_steps(&self, rays: &[Ray]) -> Option<serde_json::Value> {
+        let c = match &self.trees {
+            Trees::Fast(t) => simd::dispatch(self.backend, Counted { tree: t, rays }),
+            Trees::Watertight(t) => simd::dispatch(self.backend, Counted { tree: t, rays }),
+        };
+        let n = rays.len().max(1) as f64;
+        Some(serde_json::json!({
+            "rays": rays.len(),
+            "nodes_per_ray": c.nodes as f64 / n,
+            "packs_per_ray": c.packs as f64 / n,
+            "triangle_lanes_per_ray": 8.0 * c.packs as f64 / n,
+        }))
     }
 
     /// Refits the traversal tree in place ([`TravTree::refit`]); no builder tree is kept.

@@ -71,6 +71,41 @@ fn leaf_head(id: i32) -> (usize, u32, usize) {
     (start >> 3, ((1u32 << first) - 1) << lane, n - first)
 }
 
+/// What a traversal counts: nothing (`()`, compiled away) or [`Counts`].
+pub trait Counter {
+    /// A multi-node's boxes were tested.
+    fn node(&mut self);
+    /// A pack of 8 triangle lanes was tested.
+    fn pack(&mut self);
+}
+
+impl Counter for () {
+    #[inline(always)]
+    fn node(&mut self) {}
+    #[inline(always)]
+    fn pack(&mut self) {}
+}
+
+/// Traversal steps and triangle tests (Áfra 2013, Table 4), summed over rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Multi-nodes visited (box tests of N children at once).
+    pub nodes: u64,
+    /// Packs of 8 triangle lanes tested.
+    pub packs: u64,
+}
+
+impl Counter for Counts {
+    #[inline(always)]
+    fn node(&mut self) {
+        self.nodes += 1;
+    }
+    #[inline(always)]
+    fn pack(&mut self) {
+        self.packs += 1;
+    }
+}
+
 /// The closest hit of `ray` (contract §2).
 #[inline(always)]
 pub fn closest<S: Simd, T: TriTest, const N: usize>(
@@ -78,6 +113,21 @@ pub fn closest<S: Simd, T: TriTest, const N: usize>(
     tree: &TravTree<N, T>,
     ray: &Ray,
     stack: &mut Stack,
+) -> Hit
+where
+    Lanes<N>: SlabTest<N>,
+{
+    closest_counted(s, tree, ray, stack, &mut ())
+}
+
+/// [`closest`], counting its steps into `counts`.
+#[inline(always)]
+pub fn closest_counted<S: Simd, T: TriTest, const N: usize, C: Counter>(
+    s: S,
+    tree: &TravTree<N, T>,
+    ray: &Ray,
+    stack: &mut Stack,
+    counts: &mut C,
 ) -> Hit
 where
     Lanes<N>: SlabTest<N>,
@@ -100,6 +150,7 @@ where
     'trav: loop {
         if cur >= 0 {
             let node = &nodes[cur as usize];
+            counts.node();
             let (mut mask, dist) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, best_t);
             if mask != 0 {
                 let child = |i: usize| node.child[i & (N - 1)];
@@ -157,6 +208,7 @@ where
             let (mut p, mut lanes, mut rest) = leaf_head(cur);
             loop {
                 let Pack(pack) = &packs[p];
+                counts.pack();
                 let (m, t, u, v) = T::intersect8_uv(s, &r8, pack, tmax8);
                 let mut bits = m.bitmask() & lanes;
                 if bits == 0 {
