@@ -269,6 +269,8 @@ fn bench_runs_and_agrees_with_its_reference() {
     }
     for m in sc["results"].as_array().unwrap() {
         assert_eq!(m["agreement"], 1.0, "{m}");
+        assert_eq!(m["disagreements"], 0, "{m}");
+        assert_eq!(m["edge_disagreements"], 0, "{m}");
     }
     assert!(dump.join("quad-interior-diffuse8.ray").exists());
     assert!(dump.join("quad-interior-primary.hit").exists());

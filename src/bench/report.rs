@@ -5,7 +5,8 @@ use std::fmt::Write;
 use super::{BenchReport, DynamicReport, FrameSeries};
 
 /// A Markdown table per scene and view: one row per accelerator and thread count, Mray/s
-/// per ray set, build time, and the worst agreement with the reference.
+/// per ray set, build time, the worst agreement with the reference, and how many
+/// disagreeing rays (over all sets) are not edge cases.
 pub fn render_table(report: &BenchReport) -> String {
     let mut s = String::new();
     for sc in &report.scenes {
@@ -27,12 +28,12 @@ pub fn render_table(report: &BenchReport) -> String {
         for n in &set_names {
             let _ = write!(s, " {n} Mray/s |");
         }
-        let _ = writeln!(s, " agreement |");
+        let _ = writeln!(s, " agreement | unexplained |");
         let _ = write!(s, "|---|---:|---:|");
         for _ in &set_names {
             let _ = write!(s, "---:|");
         }
-        let _ = writeln!(s, "---:|");
+        let _ = writeln!(s, "---:|---:|");
         for b in &sc.builds {
             let _ = write!(
                 s,
@@ -42,6 +43,7 @@ pub fn render_table(report: &BenchReport) -> String {
                 b.seconds * 1e3
             );
             let mut worst: f64 = 1.0;
+            let mut unexplained = 0;
             for n in &set_names {
                 match sc
                     .results
@@ -50,6 +52,7 @@ pub fn render_table(report: &BenchReport) -> String {
                 {
                     Some(m) => {
                         worst = worst.min(m.agreement);
+                        unexplained += m.disagreements - m.edge_disagreements;
                         let _ = write!(s, " {:.3} |", m.mrays_per_s);
                     }
                     None => {
@@ -57,7 +60,7 @@ pub fn render_table(report: &BenchReport) -> String {
                     }
                 }
             }
-            let _ = writeln!(s, " {:.6} |", worst);
+            let _ = writeln!(s, " {:.6} | {unexplained} |", worst);
         }
         let mut shown: Vec<&str> = Vec::new();
         for b in &sc.builds {
