@@ -511,7 +511,10 @@ mod tests {
         // Head-on, 1e-3 inside the edge: not borderline.
         assert!(!borderline(&ray([1e-3, 0.5, 1.0], [0.0, 0.0, -1.0]), &tri));
         // The same crossing point reached at a grazing angle (cos ≈ 1e-3): borderline.
-        assert!(borderline(&ray([-999.999, 0.5, 1.0], [1.0, 0.0, -1e-3]), &tri));
+        assert!(borderline(
+            &ray([-999.999, 0.5, 1.0], [1.0, 0.0, -1e-3]),
+            &tri
+        ));
         // Parallel to the plane: never meets it, borderline by definition.
         assert!(borderline(&ray([0.25, 0.25, 1.0], [1.0, 0.0, 0.0]), &tri));
     }
