@@ -38,6 +38,9 @@
 //! test over all triangles with the (t, id) tie rule, and every backend's output equals
 //! the scalar backend's bit for bit (no FMA in the triangle tests).
 
+mod common;
+
+use common::{add, Rng};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestRunner};
 use rayd::accel::brute::Brute;
@@ -48,33 +51,6 @@ use rayd::accel::{Intersector, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
 use rayd::simd::Backend;
 use std::cell::Cell;
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn sym(&mut self) -> f32 {
-        2.0 * self.unit() - 1.0
-    }
-    fn vec(&mut self, s: f32) -> [f32; 3] {
-        [self.sym() * s, self.sym() * s, self.sym() * s]
-    }
-    fn pick(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
-fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
 
 fn scene(rng: &mut Rng, n: usize) -> Vec<Triangle> {
     let mut tris: Vec<Triangle> = Vec::with_capacity(n);

@@ -17,6 +17,9 @@
 //! A real animated scene is refitted from time 0 to later times, and a soup through 20
 //! successive refits.
 
+mod common;
+
+use common::{add, bits, sliver, Rng, SLIVER};
 use proptest::prelude::*;
 use rayd::accel::bvh::RefitError;
 use rayd::accel::triangle::intersect;
@@ -27,34 +30,6 @@ use rayd::geometry::{Hit, Ray, Triangle};
 const QUALITIES: [BuildQuality; 3] = [BuildQuality::Fast, BuildQuality::Sah, BuildQuality::Sbvh];
 const TREES: [AccelKind; 3] = [AccelKind::Mbvh8, AccelKind::Mbvh4, AccelKind::Bvh2];
 const PRECISIONS: [Precision; 2] = [Precision::Watertight, Precision::Fast];
-
-/// SplitMix64.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f32 {
-        (self.next() >> 40) as f32 / (1u64 << 24) as f32
-    }
-    fn sym(&mut self) -> f32 {
-        2.0 * self.unit() - 1.0
-    }
-    fn vec(&mut self, s: f32) -> [f32; 3] {
-        [self.sym() * s, self.sym() * s, self.sym() * s]
-    }
-    fn pick(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-}
-
-fn add(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
 
 /// A random soup of about `n` triangles: ordinary, degenerate, tiny, huge, axis-aligned
 /// on integer corners, and bursts of exact duplicates (ties across leaves).
@@ -221,22 +196,6 @@ fn rays(rng: &mut Rng, tris: &[Triangle], n: usize) -> Vec<Ray> {
     out
 }
 
-/// `longest edge² / (2·area)` in f64: 1 for a fat triangle, huge for a sliver.
-fn sliver(tri: &Triangle) -> f64 {
-    let v = tri.v.map(|p| p.map(f64::from));
-    let e = |a: usize, b: usize| [v[b][0] - v[a][0], v[b][1] - v[a][1], v[b][2] - v[a][2]];
-    let (e1, e2, e3) = (e(0, 1), e(0, 2), e(1, 2));
-    let n = [
-        e1[1] * e2[2] - e1[2] * e2[1],
-        e1[2] * e2[0] - e1[0] * e2[2],
-        e1[0] * e2[1] - e1[1] * e2[0],
-    ];
-    let len2 = |a: [f64; 3]| a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
-    len2(e1).max(len2(e2)).max(len2(e3)) / len2(n).sqrt()
-}
-
-const SLIVER: f64 = 1e3;
-
 /// Under `fast`, whether no tree can be expected to find the Möller–Trumbore hit of `ray`
 /// on `tri` at `t`: the triangle is a sliver (its t is cancellation noise), or the hit
 /// point lies outside the triangle's box by more than a small fraction of the slab test's
@@ -259,10 +218,6 @@ fn unreliable(tri: &Triangle, ray: &Ray, t: f32) -> bool {
         let hi = v[0][k].max(v[1][k]).max(v[2][k]);
         p < lo - margin || p > hi + margin
     })
-}
-
-fn bits(h: &Hit) -> [u32; 4] {
-    [h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()]
 }
 
 fn make(

@@ -19,11 +19,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
-use super::raysets::{make_sets, RaySet, SetKind};
+use super::raysets::{make_sets, occlusion_hits, SetKind};
 use super::view::View;
-use super::{median, pool, BenchError, CameraChoice, ViewKind};
+use super::{compare, median, pool, trace_set, BenchError, CameraChoice, ViewKind};
 use crate::accel::auto::{self, Geometry, Job};
-use crate::accel::{self, AccelKind, BuildOptions, BuildQuality, Intersector, Precision, Query};
+use crate::accel::{self, AccelKind, BuildOptions, BuildQuality, Intersector, Precision};
 use crate::formats::{load_scene, LoadOptions};
 use crate::geometry::{Aabb, Hit, Triangle};
 use crate::scene::Scene;
@@ -336,15 +336,10 @@ fn frames_of(
 }
 
 /// The box of every frame's triangles.
-fn bounds_of(frames: &[Vec<Triangle>]) -> Option<Aabb> {
-    let mut b: Option<Aabb> = None;
-    for f in frames {
-        if let Some(fb) = Scene::from_triangles(f.clone()).bounds() {
-            match &mut b {
-                Some(b) => b.union(&fb),
-                None => b = Some(fb),
-            }
-        }
+fn bounds_of(frames: &[Vec<Triangle>]) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for t in frames.iter().flatten() {
+        b.union(&t.bounds());
     }
     b
 }
@@ -385,14 +380,6 @@ fn strategies(kinds: &[AccelKind]) -> Vec<(AccelKind, Mode)> {
     out
 }
 
-fn trace_into(accel: &dyn Intersector, set: &RaySet, hits: &mut [Hit], flags: &mut [u8]) {
-    if set.kind == SetKind::Ao {
-        accel.occluded(&set.rays, flags);
-    } else {
-        accel.trace(&set.rays, Query::Closest, hits);
-    }
-}
-
 /// Runs the dynamic benchmark; progress goes to stderr.
 pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
     if config.scenes.is_empty() {
@@ -422,8 +409,12 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
     for path in &config.scenes {
         let scene = load_scene(path, &LoadOptions { time: None })?;
         let (frames, motion) = frames_of(path, &scene, config.motion, config.frames)?;
-        let bounds = bounds_of(&frames)
-            .ok_or_else(|| BenchError::Config("the scene has no triangles to benchmark".into()))?;
+        let bounds = bounds_of(&frames);
+        if bounds.is_empty() {
+            return Err(BenchError::Config(
+                "the scene has no triangles to benchmark".into(),
+            ));
+        }
         eprintln!(
             "bench: {} ({} triangles), {motion}",
             path.display(),
@@ -437,9 +428,10 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
             series: Vec::new(),
             auto: Vec::new(),
         };
+        // The first frame's pose, for the view (the room comes from all frames' bounds).
         let first = Scene {
             triangles: frames[0].clone(),
-            ..scene.clone()
+            ..scene
         };
         for &target in &config.rays_per_frame {
             let side = (target as f64).sqrt().round().max(1.0) as u32;
@@ -476,7 +468,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                     threads,
                 };
                 // The first strategy's answers, per set and frame, for the agreement.
-                let mut reference: Vec<Vec<(Vec<Hit>, Vec<u8>)>> = Vec::new();
+                let mut reference: Vec<Vec<Vec<Hit>>> = Vec::new();
                 for (si, &(kind, mode)) in strategies(&config.accels).iter().enumerate() {
                     let mut update = Vec::with_capacity(frames.len());
                     let mut trace: Vec<Vec<f64>> = vec![Vec::new(); sets.len()];
@@ -506,24 +498,20 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                             let mut hits = vec![Hit::MISS; set.rays.len()];
                             let mut flags = vec![0u8; set.rays.len()];
                             let t0 = Instant::now();
-                            p.install(|| trace_into(a, set, &mut hits, &mut flags));
+                            p.install(|| trace_set(a, set, &mut hits, &mut flags));
                             trace[k].push(t0.elapsed().as_secs_f64());
                             if si == 0 {
                                 if reference.len() <= k {
                                     reference.push(Vec::new());
                                 }
-                                reference[k].push((hits, flags));
-                            } else {
-                                let (rh, rf) = &reference[k][f];
-                                let bad = if set.kind == SetKind::Ao {
-                                    flags.iter().zip(rf).filter(|(a, b)| a != b).count()
+                                reference[k].push(if set.kind == SetKind::Ao {
+                                    occlusion_hits(&flags)
                                 } else {
-                                    hits.iter()
-                                        .zip(rh)
-                                        .filter(|(a, b)| !super::same_answer(a, b))
-                                        .count()
-                                };
-                                agree[k].0 += bad;
+                                    hits
+                                });
+                            } else {
+                                let r = &reference[k][f];
+                                agree[k].0 += compare(set, &hits, &flags, r, tris).0;
                             }
                             agree[k].1 += set.rays.len();
                         }

@@ -230,45 +230,45 @@ fn trace_set(accel: &dyn Intersector, set: &RaySet, hits: &mut [Hit], flags: &mu
     }
 }
 
-/// Counts rays whose answer differs from the reference's.
-fn disagreements(set: &RaySet, hits: &[Hit], flags: &[u8]) -> usize {
+/// Compares a trace of `set` with `reference` (one record per ray; for AO only whether
+/// it hits): how many rays answer differently, and how many of those are explained by f32
+/// rounding — one answer's triangle is met, by the ray's line, within rounding of its
+/// boundary (see [`borderline`]), so that which of two neighbours (or neither) the ray
+/// hits is decided by rounding. AO sets report only occlusion, so nothing there is
+/// classified.
+fn compare(
+    set: &RaySet,
+    hits: &[Hit],
+    flags: &[u8],
+    reference: &[Hit],
+    triangles: &[Triangle],
+) -> (usize, usize) {
     if set.kind == SetKind::Ao {
-        return flags
+        let bad = flags
             .iter()
-            .zip(&set.reference)
+            .zip(reference)
             .filter(|(f, r)| (**f != 0) != r.is_hit())
             .count();
+        return (bad, 0);
     }
-    hits.iter()
-        .zip(&set.reference)
-        .filter(|(h, r)| !same_answer(h, r))
-        .count()
-}
-
-/// How many of the `closest` disagreements are explained by f32 rounding: one answer's
-/// triangle is met, by the ray's line, within rounding of its boundary — its barycentric
-/// margin times its smallest altitude is at most `1e-5 × (largest coordinate)`, divided by
-/// the cosine between the ray and the triangle's plane, since at grazing angles a rounding
-/// of the position moves the crossing point along the plane by that much more — so that
-/// which of two neighbours (or neither) the ray hits is decided by rounding. AO sets report
-/// only occlusion, so nothing there is classified.
-fn edge_cases(set: &RaySet, hits: &[Hit], triangles: &[Triangle]) -> usize {
-    if set.kind == SetKind::Ao {
-        return 0;
-    }
-    set.rays
-        .iter()
-        .zip(hits.iter().zip(&set.reference))
-        .filter(|(ray, (h, r))| {
-            !same_answer(h, r)
-                && [h, r]
+    let (mut bad, mut explained) = (0, 0);
+    for ((ray, h), r) in set.rays.iter().zip(hits).zip(reference) {
+        if !same_answer(h, r) {
+            bad += 1;
+            explained += usize::from(
+                [h, r]
                     .iter()
-                    .any(|x| x.is_hit() && borderline(ray, &triangles[x.prim as usize]))
-        })
-        .count()
+                    .any(|x| x.is_hit() && borderline(ray, &triangles[x.prim as usize])),
+            );
+        }
+    }
+    (bad, explained)
 }
 
-/// Whether `ray`'s line meets `tri` within rounding of its boundary (see [`edge_cases`]).
+/// Whether `ray`'s line meets `tri` within rounding of its boundary: its barycentric margin
+/// times its smallest altitude is at most `1e-5 × (largest coordinate)`, divided by the
+/// cosine between the ray and the triangle's plane, since at grazing angles a rounding of
+/// the position moves the crossing point along the plane by that much more.
 fn borderline(ray: &Ray, tri: &Triangle) -> bool {
     let Some(h) = oracle_line_f64(ray, tri) else {
         return true;
@@ -440,8 +440,8 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                             p.install(|| trace_set(accel.as_ref(), set, &mut hits, &mut flags));
                             times.push(t0.elapsed().as_secs_f64());
                         }
-                        let bad = disagreements(set, &hits, &flags);
-                        let at_edges = edge_cases(set, &hits, &view.triangles);
+                        let (bad, at_edges) =
+                            compare(set, &hits, &flags, &set.reference, &view.triangles);
                         let steps = if set.kind == SetKind::Ao
                             || scene_report.results.iter().any(|m: &Measurement| {
                                 m.accel == accel.name() && m.set == set.kind.name()

@@ -75,6 +75,26 @@ pub struct RaySet {
     pub reference: Vec<Hit>,
 }
 
+/// Occlusion flags as hit records (any hit counts; its fields are not kept), so that AO
+/// answers can be compared like the others.
+pub(super) fn occlusion_hits(flags: &[u8]) -> Vec<Hit> {
+    flags
+        .iter()
+        .map(|&f| {
+            if f != 0 {
+                Hit {
+                    t: 0.0,
+                    prim: 0,
+                    u: 0.0,
+                    v: 0.0,
+                }
+            } else {
+                Hit::MISS
+            }
+        })
+        .collect()
+}
+
 /// A cosine-weighted ray leaving the hit `hit` of `ray`, drawn from the stream of `index`.
 fn bounce_ray(view: &View, ray: &Ray, hit: &Hit, seed: u64, index: usize, tmax: f32) -> Ray {
     let n = facing_normal(&view.triangles[hit.prim as usize], ray.dir);
@@ -125,21 +145,7 @@ pub fn make_sets(
             .collect();
         let mut flags = vec![0u8; rays.len()];
         tracer.occluded(&rays, &mut flags);
-        let reference = flags
-            .iter()
-            .map(|&f| {
-                if f != 0 {
-                    Hit {
-                        t: 0.0,
-                        prim: 0,
-                        u: 0.0,
-                        v: 0.0,
-                    }
-                } else {
-                    Hit::MISS
-                }
-            })
-            .collect();
+        let reference = occlusion_hits(&flags);
         out.push(RaySet {
             kind: SetKind::Ao,
             rays,

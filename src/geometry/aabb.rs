@@ -68,6 +68,18 @@ impl Aabb {
         ]
     }
 
+    /// Largest |coordinate| of the corners (0 for the empty box): the magnitude that sets
+    /// the rounding error of anything computed from points inside.
+    pub fn max_abs(&self) -> f32 {
+        if self.is_empty() {
+            return 0.0;
+        }
+        self.min
+            .iter()
+            .chain(&self.max)
+            .fold(0.0f32, |m, x| m.max(x.abs()))
+    }
+
     /// Surface area (zero for the empty box).
     pub fn area(&self) -> f32 {
         let e = self.extent();

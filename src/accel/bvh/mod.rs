@@ -66,6 +66,7 @@ mod stats;
 mod validate;
 mod wide;
 
+pub(crate) use build::half_area;
 pub(crate) use refit::check as check_refit;
 
 pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};

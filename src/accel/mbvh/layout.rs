@@ -20,7 +20,7 @@
 
 use rayon::prelude::*;
 
-use crate::accel::bvh::{self, Child, RefitError};
+use crate::accel::bvh::{self, half_area, Child, RefitError};
 use crate::accel::triangle::{Tri8, TriTest};
 use crate::geometry::{Aabb, Triangle};
 
@@ -157,7 +157,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         TravTree {
             nodes,
             packs,
-            scale: scale_of(&tree.bounds()),
+            scale: tree.bounds().max_abs(),
             depth: depth(src),
             triangles: tree.triangle_count(),
             excluded: tree.excluded().to_vec(),
@@ -183,7 +183,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         } else {
             refit_nodes(&mut self.nodes, 0, &self.packs, triangles)
         };
-        self.scale = scale_of(&bounds);
+        self.scale = bounds.max_abs();
         Ok(())
     }
 
@@ -192,18 +192,6 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         self.nodes.capacity() * std::mem::size_of::<TravNode<N>>()
             + self.packs.capacity() * std::mem::size_of::<Pack<T>>()
             + self.excluded.capacity() * std::mem::size_of::<u32>()
-    }
-}
-
-/// Largest |coordinate| of `b`, 0 when empty (see `TravTree::scale`).
-fn scale_of(b: &Aabb) -> f32 {
-    if b.is_empty() {
-        0.0
-    } else {
-        b.min
-            .iter()
-            .chain(&b.max)
-            .fold(0.0f32, |m, x| m.max(x.abs()))
     }
 }
 
@@ -362,11 +350,23 @@ fn depth<const N: usize>(nodes: &[bvh::WideNode<N>]) -> usize {
     deepest
 }
 
-/// Half the surface area of the box of lane `lane` of `node` (0 for an empty lane).
-fn lane_half_area<const N: usize>(node: &TravNode<N>, lane: usize) -> f64 {
-    let e =
-        [0, 1, 2].map(|k| (node.planes[k + 3][lane] as f64 - node.planes[k][lane] as f64).max(0.0));
-    e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
+impl<const N: usize> TravNode<N> {
+    /// The box of lane `lane` (an empty lane's is empty).
+    fn lane_box(&self, lane: usize) -> Aabb {
+        Aabb {
+            min: [0, 1, 2].map(|k| self.planes[k][lane]),
+            max: [3, 4, 5].map(|k| self.planes[k][lane]),
+        }
+    }
+
+    /// The union of the lanes' boxes: the node's own box.
+    fn bounds(&self) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for lane in 0..N {
+            b.union(&self.lane_box(lane));
+        }
+        b
+    }
 }
 
 impl<const N: usize, T: TriTest> TravTree<N, T> {
@@ -380,31 +380,10 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         let (mut lanes_used, mut leaves, mut leaf_tris, mut leaf_packs) =
             (0usize, 0usize, 0usize, 0usize);
         let mut sah = 0.0f64;
-        let union_area = |n: &TravNode<N>| {
-            let mut b = [
-                f32::INFINITY,
-                f32::INFINITY,
-                f32::INFINITY,
-                f32::NEG_INFINITY,
-                f32::NEG_INFINITY,
-                f32::NEG_INFINITY,
-            ];
-            for lane in 0..N {
-                if n.child[lane] == empty {
-                    continue;
-                }
-                for k in 0..3 {
-                    b[k] = b[k].min(n.planes[k][lane]);
-                    b[k + 3] = b[k + 3].max(n.planes[k + 3][lane]);
-                }
-            }
-            let e = [0, 1, 2].map(|k| (b[k + 3] as f64 - b[k] as f64).max(0.0));
-            e[0] * e[1] + e[1] * e[2] + e[2] * e[0]
-        };
-        let root = self.nodes.first().map_or(0.0, union_area);
+        let root = self.nodes.first().map_or(0.0, |n| half_area(&n.bounds()));
         let inv = if root > 0.0 { 1.0 / root } else { 0.0 };
         for n in &self.nodes {
-            sah += union_area(n) * inv;
+            sah += half_area(&n.bounds()) * inv;
             for lane in 0..N {
                 let c = n.child[lane];
                 if c == empty {
@@ -417,7 +396,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                     leaves += 1;
                     leaf_tris += count;
                     leaf_packs += packs;
-                    sah += packs as f64 * lane_half_area(n, lane) * inv;
+                    sah += packs as f64 * half_area(&n.lane_box(lane)) * inv;
                 }
             }
         }

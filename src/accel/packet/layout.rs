@@ -77,7 +77,7 @@ impl<T: TriTest> PacketTree<T> {
         PacketTree {
             nodes,
             packs,
-            scale: scale_of(&tree.bounds()),
+            scale: tree.bounds().max_abs(),
             triangles: tree.triangle_count(),
             excluded: tree.excluded().to_vec(),
         }
@@ -99,7 +99,7 @@ impl<T: TriTest> PacketTree<T> {
         } else {
             refit_nodes(&mut self.nodes, 0, &self.packs, triangles)
         };
-        self.scale = scale_of(&bounds);
+        self.scale = bounds.max_abs();
         Ok(())
     }
 
@@ -108,18 +108,6 @@ impl<T: TriTest> PacketTree<T> {
         self.nodes.capacity() * std::mem::size_of::<PacketNode>()
             + self.packs.capacity() * std::mem::size_of::<Tri8<T>>()
             + self.excluded.capacity() * std::mem::size_of::<u32>()
-    }
-}
-
-/// Largest |coordinate| of `b`, 0 when empty.
-fn scale_of(b: &Aabb) -> f32 {
-    if b.is_empty() {
-        0.0
-    } else {
-        b.min
-            .iter()
-            .chain(&b.max)
-            .fold(0.0f32, |m, x| m.max(x.abs()))
     }
 }
 
