@@ -20,6 +20,17 @@
 //! the operand order of the x86 `min`/`max` rule, which only ever enlarges the interval.
 //! The grown boxes cost a negligible number of extra visits (δ is ~10⁻⁶ of the scene).
 //!
+//! # The interval start
+//!
+//! Growing the boxes makes the entry distance of the box of a reported hit at most its t,
+//! but a box test must also not end before that t: a ray grazing a triangle gets a t whose
+//! error, along the ray, can exceed δ, so its point may lie past the box's exit. Within
+//! `[tmin, best]` that only matters at the start: a hit the triangle test reports at
+//! exactly `tmin` (a ray continued from a hit, `tmin` set to that hit's t) was missed when
+//! its box's exit, rounded, fell just before `tmin`. Boxes are therefore tested on
+//! `[0, best]`, and the triangle test alone applies `tmin`: a ray with `tmin > 0` may
+//! visit a few boxes wholly before `tmin`, but never skips one holding a hit.
+//!
 //! # Finite reciprocals
 //!
 //! A ±0 direction component would make `1/dir` infinite and every slab distance of that
@@ -54,7 +65,8 @@ pub struct BoxRay {
     /// Per axis, whether the direction's sign bit is set (then the upper plane is the near
     /// one).
     pub neg: [bool; 3],
-    /// Interval start, `+0` for a `-0` input (so its bits order like the value).
+    /// Start of the interval boxes are tested on: always `+0`, not the ray's `tmin` (see
+    /// "The interval start" in the module docs); the triangle test applies `tmin`.
     pub tmin: f32,
     /// Interval end, `+0` for `-0`.
     pub tmax: f32,
@@ -83,7 +95,7 @@ impl BoxRay {
                 r.dir[2].is_sign_negative(),
             ],
             // x + 0.0 turns -0 into +0 and leaves everything else as it is.
-            tmin: r.tmin + 0.0,
+            tmin: 0.0,
             tmax: r.tmax + 0.0,
         }
     }
@@ -134,7 +146,7 @@ pub struct SlabConsts {
     pub far_oi: [f32; 4],
     /// Bit k set when `dir[k]`'s sign bit is.
     pub neg: u32,
-    /// Interval start (`-0` made `+0`).
+    /// Start of the interval boxes are tested on: `+0` (see [`BoxRay::tmin`]).
     pub tmin: f32,
     /// Interval end (`-0` made `+0`).
     pub tmax: f32,
@@ -162,7 +174,7 @@ impl SlabConsts {
             near_oi: (-(near * inv)).to_array(),
             far_oi: (-(far * inv)).to_array(),
             neg: neg.bitmask() & 7,
-            tmin: r.tmin + 0.0,
+            tmin: 0.0,
             tmax: r.tmax + 0.0,
         }
     }
