@@ -17,6 +17,8 @@ pub mod bench;
 pub mod cli;
 pub mod formats;
 pub mod geometry;
+pub mod jobs;
+pub mod names;
 pub mod render;
 pub mod scene;
 pub mod simd;

@@ -2,7 +2,7 @@
 
 use serde_json::json;
 
-use super::{parse_accel, parse_build, parse_precision, CliError, PathArg};
+use super::{CliError, PathArg};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 
 #[derive(clap::Args, Debug)]
@@ -10,13 +10,13 @@ pub(super) struct InfoArgs {
     /// Scene file (.glb, .gltf or .tri).
     scene: PathArg,
     /// Also build this accelerator and report its build time, memory and statistics.
-    #[arg(long, value_parser = parse_accel)]
+    #[arg(long, value_enum)]
     accel: Option<AccelKind>,
     /// Build quality of the accelerator: fast, sah, sbvh.
-    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    #[arg(long, default_value = "sah", value_enum)]
     build: BuildQuality,
     /// Ray/triangle test of the accelerator: fast or watertight.
-    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    #[arg(long, default_value = "watertight", value_enum)]
     precision: Precision,
     /// Threads for the build; 0 or absent: all cores.
     #[arg(long, default_value_t = 0)]
@@ -58,6 +58,7 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
             quality: a.build,
             precision: a.precision,
             threads: pool.current_num_threads(),
+            dacrt: crate::accel::dacrt::DacrtTuning::from_env(),
         };
         let t0 = std::time::Instant::now();
         let accel = pool.install(|| crate::accel::build(kind, &scene.triangles, &options))?;

@@ -66,18 +66,23 @@ impl Scene {
 
     /// Bounding box of all triangles; `None` when there are none.
     pub fn bounds(&self) -> Option<Aabb> {
-        if self.triangles.is_empty() {
-            return None;
-        }
-        let mut b = Aabb::EMPTY;
-        for t in &self.triangles {
-            b.union(&t.bounds());
-        }
-        Some(b)
+        bounds_of(&self.triangles)
     }
 
     /// Bytes held for tracing: the positions.
     pub fn bytes(&self) -> usize {
         self.triangles.len() * std::mem::size_of::<Triangle>()
     }
+}
+
+/// Bounding box of `triangles`; `None` when there are none.
+pub fn bounds_of(triangles: &[Triangle]) -> Option<Aabb> {
+    if triangles.is_empty() {
+        return None;
+    }
+    let mut b = Aabb::EMPTY;
+    for t in triangles {
+        b.union(&t.bounds());
+    }
+    Some(b)
 }
