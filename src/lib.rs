@@ -20,3 +20,4 @@ pub mod geometry;
 pub mod render;
 pub mod scene;
 pub mod simd;
+pub mod store;
