@@ -355,7 +355,12 @@ async fn scenes_are_created_once_per_content_and_listed_in_pages() {
     // A scene can only name a stored blob.
     let ghost = BlobId::of(b"never stored");
     assert!(matches!(
-        store.create_scene(bad(|n| n.blob = ghost.clone())).await,
+        store
+            .create_scene(NewScene {
+                blob: ghost,
+                ..new.clone()
+            })
+            .await,
         Err(StoreError::NotFound { what: "blob", .. })
     ));
 
@@ -961,7 +966,7 @@ async fn gc_never_races_an_upload_of_the_same_bytes() {
             while !stop.load(std::sync::atomic::Ordering::Relaxed) {
                 deleted += store.gc().await.unwrap().deleted;
                 runs += 1;
-                tokio::task::yield_now().await;
+                tokio::time::sleep(Duration::from_micros(200 * (runs % 5) as u64)).await;
             }
             (runs, deleted)
         })
@@ -970,46 +975,48 @@ async fn gc_never_races_an_upload_of_the_same_bytes() {
     for t in 0..3u8 {
         let store = store.clone();
         uploaders.push(tokio::spawn(async move {
-            let (mut ok, mut collected) = (0, 0);
+            let mut collected = 0;
             for round in 0..40u8 {
-                // Tasks share bytes (round % 4) so uploads of the same bytes meet too.
-                let bytes = vec![round % 4; 1000 + t as usize];
-                let blob = store.put_blob(bytes.clone()).await.unwrap();
-                let s = store.get_scene(&"e".repeat(64)).await;
-                assert!(s.is_err());
-                match store
-                    .create_scene(NewScene {
-                        blob: blob.clone(),
-                        content_type: "application/x-rayd-tri".into(),
-                        name: None,
-                        summary: "{}".into(),
-                    })
-                    .await
-                {
-                    Ok((scene, _)) => {
-                        ok += 1;
-                        // Referenced now: GC must keep it.
-                        assert_eq!(store.get_blob(&scene.id).await.unwrap(), bytes);
-                        store.delete_scene(&scene.id).await.ok();
+                // The same four byte strings again and again: each upload meets the garbage
+                // its predecessor left (its scene deleted below), which GC is after.
+                let bytes = vec![t * 4 + round % 4; 1000];
+                loop {
+                    let blob = store.put_blob(bytes.clone()).await.unwrap();
+                    match store
+                        .create_scene(NewScene {
+                            blob: blob.clone(),
+                            content_type: "application/x-rayd-tri".into(),
+                            name: None,
+                            summary: "{}".into(),
+                        })
+                        .await
+                    {
+                        Ok((scene, _)) => {
+                            // Referenced now: GC must keep it.
+                            assert_eq!(store.get_blob(&scene.id).await.unwrap(), bytes);
+                            store.delete_scene(&scene.id).await.unwrap();
+                            break;
+                        }
+                        // Collected between put and record: refused, never dangling.
+                        Err(StoreError::NotFound { what: "blob", .. }) => collected += 1,
+                        Err(e) => panic!("unexpected {e}"),
                     }
-                    Err(StoreError::NotFound { what: "blob", .. }) => collected += 1,
-                    Err(e) => panic!("unexpected {e}"),
+                    assert!(collected < 10_000, "uploads starved by GC");
                 }
             }
-            (ok, collected)
+            collected
         }));
     }
-    let mut ok = 0;
+    let mut collected = 0;
     for u in uploaders {
-        ok += u.await.unwrap().0;
+        collected += u.await.unwrap();
     }
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     let (runs, deleted) = gc.await.unwrap();
     assert!(
         runs > 0 && deleted > 0,
-        "GC ran ({runs}) and collected ({deleted})"
+        "GC ran ({runs}) and collected ({deleted}; {collected} uploads refused)"
     );
-    assert!(ok > 0);
     // Every record left names a blob that is there and intact.
     for blob in sqlx::query_scalar::<_, String>("SELECT blob FROM scene_versions")
         .fetch_all(&store.inner.reader)
@@ -1181,7 +1188,12 @@ async fn a_full_database_rolls_back_and_recovers() {
 async fn a_backup_taken_while_writing_opens_as_a_store() {
     let tmp = tempfile::tempdir().unwrap();
     let data = tmp.path().join("data");
-    let store = open(&data).await;
+    // A grace period, as in service: the writer's blobs wait for their records.
+    let options = StoreOptions {
+        gc_grace: Duration::from_secs(60),
+        ..opts()
+    };
+    let store = Store::open(&data, options).await.unwrap();
     for i in 0..5u32 {
         scene(&store, format!("before {i}").as_bytes()).await;
     }
@@ -1209,11 +1221,15 @@ async fn a_backup_taken_while_writing_opens_as_a_store() {
                     )
                     .await
                     .unwrap();
-                // Churn: something to collect while the backup runs.
-                store
+                // Churn: old garbage for a GC that runs beside the backup.
+                let g = store
                     .put_blob(format!("garbage {i}").into_bytes())
                     .await
                     .unwrap();
+                age(
+                    &store.blob_path(g.as_str()).await.unwrap(),
+                    Duration::from_secs(120),
+                );
                 i += 1;
             }
             i
