@@ -22,3 +22,4 @@ pub mod names;
 pub mod render;
 pub mod scene;
 pub mod simd;
+pub mod store;

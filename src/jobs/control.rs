@@ -40,6 +40,8 @@ pub struct Control {
     /// The job's place in the scheduler, for its leases.
     ticket: Option<Ticket>,
     pool: Arc<rayon::ThreadPool>,
+    /// Called once, when the job's first step gets the pool (it leaves the queue).
+    on_start: std::sync::Mutex<Option<Box<dyn FnOnce() + Send>>>,
 }
 
 impl Control {
@@ -56,7 +58,14 @@ impl Control {
             progress,
             ticket,
             pool,
+            on_start: std::sync::Mutex::new(None),
         }
+    }
+
+    /// Calls `f` once, when the job's first step gets the pool.
+    pub fn on_start(self, f: impl FnOnce() + Send + 'static) -> Control {
+        *self.on_start.lock().unwrap_or_else(|e| e.into_inner()) = Some(Box::new(f));
+        self
     }
 
     /// The cancellation token.
@@ -90,6 +99,14 @@ impl Control {
             None => None,
         };
         self.check()?;
+        if let Some(f) = self
+            .on_start
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+        {
+            f();
+        }
         Ok(self.pool.install(step))
     }
 

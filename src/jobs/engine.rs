@@ -102,6 +102,13 @@ impl Engine {
         &self.sched
     }
 
+    /// Runs `f` on the pool without waiting for the scheduler's lease (small CPU work a
+    /// request needs before it can be queued, such as parsing an upload) and hands the
+    /// result to `done`.
+    pub fn spawn(&self, f: impl FnOnce() + Send + 'static) {
+        self.pool.spawn(f);
+    }
+
     /// Hooks for a job that runs alone, nobody cancelling it (the command line).
     pub fn detached(&self) -> Control {
         Control::new(Arc::clone(&self.pool), CancelToken::new(), None, None)
