@@ -13,6 +13,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod accel;
+pub mod app;
 pub mod bench;
 pub mod cli;
 pub mod formats;

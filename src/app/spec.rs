@@ -163,9 +163,15 @@ fn unsupported(field: &'static str, detail: impl Into<String>) -> AppError {
 
 impl RenderSpec {
     /// The engine's request and the frame times, or the first field that is wrong.
-    pub fn resolve(&self, max_frames: usize) -> Result<(RenderRequest, Vec<Option<f64>>), AppError> {
+    pub fn resolve(
+        &self,
+        max_frames: usize,
+    ) -> Result<(RenderRequest, Vec<Option<f64>>), AppError> {
         if self.priority > 100 {
-            return Err(bad("priority", format!("{} is not in 0..=100", self.priority)));
+            return Err(bad(
+                "priority",
+                format!("{} is not in 0..=100", self.priority),
+            ));
         }
         let camera = match (self.camera, self.eye, self.target) {
             (Some(_), Some(_), _) | (Some(_), _, Some(_)) => {
@@ -215,7 +221,9 @@ impl RenderSpec {
             ));
         }
         let times = match (&self.frames, self.time) {
-            (Some(_), Some(_)) => return Err(bad("frames", "give either frames or time, not both")),
+            (Some(_), Some(_)) => {
+                return Err(bad("frames", "give either frames or time, not both"))
+            }
             (Some(f), None) => crate::jobs::render::frame_times(f.start, f.end, f.step, max_frames)
                 .map_err(|e| bad("frames", e.to_string()))?
                 .into_iter()
@@ -260,7 +268,13 @@ mod tests {
         let e = serde_json::from_str::<RenderSpec>(r#"{"widht": 3}"#).unwrap_err();
         assert!(e.to_string().contains("widht"), "{e}");
         let s: RenderSpec = serde_json::from_str(r#"{"eye":[0,0,1]}"#).unwrap();
-        assert!(matches!(s.resolve(1), Err(AppError::BadParameter { field: "target", .. })));
+        assert!(matches!(
+            s.resolve(1),
+            Err(AppError::BadParameter {
+                field: "target",
+                ..
+            })
+        ));
         let s: RenderSpec =
             serde_json::from_str(r#"{"frames":{"start":0,"end":1,"step":0.25},"format":"exr"}"#)
                 .unwrap();
