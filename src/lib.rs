@@ -19,4 +19,5 @@ pub mod formats;
 pub mod geometry;
 pub mod render;
 pub mod scene;
+pub mod service;
 pub mod simd;
