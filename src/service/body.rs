@@ -440,7 +440,7 @@ mod tests {
         assert_eq!(b.available(), 64 << 10);
     }
 
-    #[tokio::test(start_paused = true)]
+    #[tokio::test]
     async fn spent_budget_is_503_with_retry_after() {
         let b = budget(8 << 10);
         let first = read_body_limited(Body::from(vec![0u8; 6 << 10]), 1 << 20, &b)

@@ -188,6 +188,8 @@ fn field_of(path: &str, message: &str) -> Option<String> {
         .and_then(|rest| rest.split('`').next())
         .map(str::to_owned);
     match (base, named) {
+        // An unknown field's path already ends with it; a missing one's is its parent.
+        (Some(b), Some(n)) if b == n || b.ends_with(&format!(".{n}")) => Some(b),
         (Some(b), Some(n)) => Some(format!("{b}.{n}")),
         (None, Some(n)) => Some(n),
         (b, None) => b,

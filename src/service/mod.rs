@@ -35,7 +35,7 @@ use axum::http::{Method, Uri};
 use axum::middleware::{from_fn, from_fn_with_state};
 use axum::routing::MethodRouter;
 use axum::Router;
-use tower_http::trace::TraceLayer;
+use tower_http::trace::{DefaultOnResponse, TraceLayer};
 
 pub use auth::{Auth, AuthError};
 pub use body::{read_body_limited, BodyBudget, BodyReader, ClientLimiter, HeldBody};
@@ -233,7 +233,11 @@ pub fn router(state: AppState, v1: Routes) -> Router {
             state.metrics.clone(),
             metrics::record_request,
         ))
-        .layer(TraceLayer::new_for_http().make_span_with(request_id::make_span))
+        .layer(
+            TraceLayer::new_for_http()
+                .make_span_with(request_id::make_span)
+                .on_response(DefaultOnResponse::new().level(tracing::Level::INFO)),
+        )
         .layer(from_fn(request_id::request_id_layer))
         .with_state(state)
 }
@@ -255,6 +259,7 @@ pub fn init_logging(format: LogFormat) {
     let filter = EnvFilter::try_from_env("RAYD_LOG").unwrap_or_else(|_| EnvFilter::new("info"));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_writer(std::io::stderr);
     let _ = match format {
         LogFormat::Text => builder.try_init(),
