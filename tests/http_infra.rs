@@ -600,6 +600,32 @@ fn real_server_starts_probes_and_stops_within_grace() {
     }
     assert_eq!(http_get(port, "/readyz"), Some(200));
 
+    // Token rotation by SIGHUP.
+    let bearer = |t: &str| format!("Authorization: Bearer {t}\r\n");
+    assert_eq!(
+        http_get_with(port, "/v1/openapi.json", &bearer("old-token")),
+        Some(200)
+    );
+    assert_eq!(http_get(port, "/v1/openapi.json"), Some(401));
+    std::fs::write(&tokens, "new-token\n").unwrap();
+    let hup = Command::new("kill")
+        .args(["-HUP", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(hup.success());
+    let t = Instant::now();
+    while http_get_with(port, "/v1/openapi.json", &bearer("new-token")) != Some(200) {
+        assert!(
+            t.elapsed() < Duration::from_secs(5),
+            "SIGHUP did not load the new token"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert_eq!(
+        http_get_with(port, "/v1/openapi.json", &bearer("old-token")),
+        Some(401)
+    );
+
     // The probe the Docker image uses.
     let probe = Command::new(env!("CARGO_BIN_EXE_rayd"))
         .args(["healthcheck", "--url", &format!("http://{addr}/healthz")])
