@@ -22,5 +22,6 @@ pub mod jobs;
 pub mod names;
 pub mod render;
 pub mod scene;
+pub mod service;
 pub mod simd;
 pub mod store;

@@ -1,4 +1,5 @@
-//! The command line (contract §4): `info`, `trace`, `render` and `bench`.
+//! The command line (contract §4): `info`, `trace`, `render`, `bench`, `serve` and
+//! `healthcheck`.
 //!
 //! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
 //! stderr and exits non-zero. Parsing happens here; the work happens in the library.
@@ -6,6 +7,7 @@
 mod bench;
 mod info;
 mod render;
+mod serve;
 mod trace;
 
 use std::path::PathBuf;
@@ -52,6 +54,9 @@ pub enum CliError {
     /// An option's value is unusable in a way the parser cannot see.
     #[error("{0}")]
     Usage(String),
+    /// The HTTP service could not start or failed.
+    #[error(transparent)]
+    Service(#[from] crate::service::ServiceError),
     /// A thread pool could not be made.
     #[error("cannot start the thread pool: {0}")]
     Pool(#[from] rayon::ThreadPoolBuildError),
@@ -81,6 +86,10 @@ enum Command {
     Render(render::RenderArgs),
     /// Measure the accelerators on identical ray sets.
     Bench(bench::BenchArgs),
+    /// Run the HTTP service.
+    Serve(crate::service::ServeArgs),
+    /// Probe a running service; exit 0 when it answers 200.
+    Healthcheck(serve::HealthcheckArgs),
 }
 
 /// Runs the command line and turns the outcome into an exit code.
@@ -93,6 +102,8 @@ pub fn main() -> ExitCode {
             Command::Trace(a) => trace::run(a),
             Command::Render(a) => render::run(a),
             Command::Bench(a) => bench::run(a),
+            Command::Serve(a) => serve::run(a),
+            Command::Healthcheck(a) => serve::healthcheck(a),
         });
     match result {
         Ok(json) => {
