@@ -705,3 +705,10 @@ fn real_server_starts_probes_and_stops_within_grace() {
     let _ = again.kill();
     let _ = again.wait();
 }
+
+#[test]
+fn the_whole_router_equals_the_document() {
+    // The domain routes and the service's own, exactly the operations of proto/openapi.yaml.
+    let table = service::route_table(&rayd::service::routes::routes());
+    assert_eq!(openapi::check_routes(&table), Ok(()));
+}

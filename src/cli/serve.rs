@@ -3,12 +3,13 @@
 
 use std::io::{Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use serde_json::json;
 
 use super::CliError;
-use crate::service::{self, AppState, Routes, ServeArgs, ServiceError};
+use crate::service::{self, AppState, ServeArgs, ServiceError};
 
 /// Runs the service until SIGTERM or SIGINT and the grace period.
 pub(super) fn run(args: ServeArgs) -> Result<serde_json::Value, CliError> {
@@ -24,8 +25,32 @@ pub(super) fn run(args: ServeArgs) -> Result<serde_json::Value, CliError> {
 async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     let addr = args.addr;
     let state = AppState::new(args)?;
-    // The domain routes (scenes, trace, render, jobs) are added to this table.
-    let app = service::router(state.clone(), Routes::new());
+    let config = state.config.clone();
+    // The store first: a second server on the same directory stops here.
+    let store = crate::store::Store::open(
+        &config.data_dir,
+        crate::store::StoreOptions {
+            result_ttl: (config.result_ttl > 0).then(|| Duration::from_secs(config.result_ttl)),
+            ..Default::default()
+        },
+    )
+    .await
+    .map_err(|e| CliError::Usage(format!("cannot open the store: {e}")))?;
+    let engine = Arc::new(crate::jobs::Engine::new(crate::jobs::EngineOptions {
+        threads: config.threads,
+        cache_bytes: config.cache_bytes as usize,
+        max_queued: config.max_queued,
+        limits: crate::jobs::Limits {
+            max_rays: config.max_rays as usize,
+            max_pixels: config.max_pixels,
+            max_spp: config.max_spp,
+            ..crate::jobs::Limits::default()
+        },
+        tuning: crate::accel::dacrt::DacrtTuning::from_env(),
+    })?);
+    let app = crate::app::App::new(store.clone(), Arc::clone(&engine), Default::default());
+    let router = service::router(state.clone(), service::routes::routes())
+        .layer(axum::Extension(app.clone()));
     let listener =
         service::bind(addr).map_err(|source| io(&format!("cannot listen on {addr}"), source))?;
     service::health::shutdown_on_signals(state.ready.clone(), state.shutdown.clone())
@@ -33,11 +58,23 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     #[cfg(unix)]
     service::auth::reload_on_sighup(state.auth.clone(), state.shutdown.clone())
         .map_err(|source| io("cannot install the SIGHUP handler", source))?;
-    // Nothing to load yet: the store, once opened above, decides when this is true.
+    // Jobs that were queued or running when the last process ended run again.
+    let recovered = app
+        .recover()
+        .await
+        .map_err(|e| CliError::Usage(format!("cannot recover the queued jobs: {e}")))?;
+    if recovered > 0 {
+        tracing::info!(jobs = recovered, "re-queued jobs from the last run");
+    }
+    if config.demo {
+        demo(&app).await;
+    }
+    spawn_housekeeping(state.clone(), app.clone());
     state.ready.set_ready();
+    tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is listening");
     let stopped = service::serve(
         listener,
-        app,
+        router,
         state.server_options(),
         state.ready.clone(),
         state.shutdown.clone(),
@@ -45,11 +82,69 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     )
     .await
     .map_err(|source| io("serving failed", source))?;
+    // No new work; running jobs had the grace period to finish. Flush the store.
+    engine.scheduler().shut_down();
+    store.close().await;
     Ok(json!({
         "addr": addr.to_string(),
         "drained": stopped.drained,
         "abandoned_connections": stopped.abandoned,
+        "recovered_jobs": recovered,
     }))
+}
+
+/// `--demo`: uploads the repository's sample scenes (built into the binary).
+async fn demo(app: &crate::app::App) {
+    const SCENES: [(&str, &[u8]); 3] = [
+        ("Fox.glb", include_bytes!("../../scenes/Fox.glb")),
+        ("Box.glb", include_bytes!("../../scenes/Box.glb")),
+        (
+            "SimpleMeshes.glb",
+            include_bytes!("../../scenes/SimpleMeshes.glb"),
+        ),
+    ];
+    for (name, bytes) in SCENES {
+        match app
+            .upload(
+                crate::app::UploadKind::Glb,
+                bytes.to_vec(),
+                Some(name.into()),
+            )
+            .await
+        {
+            Ok((s, _)) => tracing::info!(scene = %s.id, name, "demo scene"),
+            Err(e) => tracing::error!(name, "demo scene refused: {e}"),
+        }
+    }
+}
+
+/// Once a second: the gauges of `/metrics`; once a minute: expiry and blob collection.
+fn spawn_housekeeping(state: AppState, app: crate::app::App) {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        let mut n = 0u64;
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = state.shutdown.cancelled() => break,
+            }
+            let sched = app.engine().scheduler();
+            state.metrics.set_queue_length(sched.queued());
+            state.metrics.set_jobs_running(sched.running());
+            let cache = app.engine().cache().stats();
+            state.metrics.set_cache_bytes(cache.bytes as u64);
+            n += 1;
+            if n % 60 == 0 {
+                let store = app.store();
+                if let Err(e) = store.expire(crate::store::now_millis()).await {
+                    tracing::warn!("expiring finished jobs failed: {e}");
+                }
+                if let Err(e) = store.gc().await {
+                    tracing::warn!("blob collection failed: {e}");
+                }
+            }
+        }
+    });
 }
 
 fn io(what: &str, source: std::io::Error) -> CliError {

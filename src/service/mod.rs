@@ -25,6 +25,7 @@ pub mod health;
 pub mod metrics;
 pub mod openapi;
 pub mod request_id;
+pub mod routes;
 pub mod server;
 
 use std::sync::Arc;
