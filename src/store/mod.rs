@@ -278,9 +278,7 @@ impl Store {
             let _gate = self.inner.gc_gate.write().await;
             let blobs = Arc::clone(&self.inner.blobs);
             let id = id.clone();
-            if let Err(e) = blocking(&self.inner.dir, move || blobs.quarantine(&id)).await {
-                return Err(e);
-            }
+            blocking(&self.inner.dir, move || blobs.quarantine(&id)).await?;
         }
         r
     }
