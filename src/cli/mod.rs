@@ -1,8 +1,9 @@
-//! The command line (contract §4): `info`, `trace`, `render` and `bench`.
+//! The command line (contract §4): `info`, `trace`, `render`, `bench` and `backup`.
 //!
 //! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
 //! stderr and exits non-zero. Parsing happens here; the work happens in the library.
 
+mod backup;
 mod bench;
 mod info;
 mod render;
@@ -57,6 +58,9 @@ pub enum CliError {
     /// A thread pool could not be made.
     #[error("cannot start the thread pool: {0}")]
     Pool(#[from] rayon::ThreadPoolBuildError),
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
 }
 
 #[derive(Parser, Debug)]
@@ -80,6 +84,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Measure the accelerators on identical ray sets.
     Bench(bench::BenchArgs),
+    /// Copy a data directory (live or not) to a new directory that opens as a store.
+    Backup(backup::BackupArgs),
 }
 
 /// Runs the command line and turns the outcome into an exit code.
@@ -92,6 +98,7 @@ pub fn main() -> ExitCode {
             Command::Trace(a) => trace::run(a),
             Command::Render(a) => render::run(a),
             Command::Bench(a) => bench::run(a),
+            Command::Backup(a) => backup::run(a),
         });
     match result {
         Ok(json) => {
