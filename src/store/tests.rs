@@ -1314,3 +1314,91 @@ async fn backup_dir_copies_a_store_held_by_another_handle_or_by_none() {
         Err(StoreError::NotFound { what: "store", .. })
     ));
 }
+
+/// A real full disk: a 4 MiB tmpfs, where mounting works (as root with the capability; the
+/// test says so and returns elsewhere). Fills it until a write fails, which must be `Full`
+/// and leave nothing half-written, then frees space and writes again.
+#[cfg(target_os = "linux")]
+#[tokio::test]
+async fn a_real_full_tmpfs_reports_full_and_recovers() {
+    struct Mount(PathBuf);
+    impl Drop for Mount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let point = tmp.path().join("small");
+    std::fs::create_dir(&point).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=4m", "tmpfs"])
+        .arg(&point)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("skipped: cannot mount a tmpfs here (needs root)");
+        return;
+    }
+    let _mount = Mount(point.clone());
+    // Someone else's file, removed later to make space "return".
+    let ballast = point.join("ballast");
+    std::fs::write(&ballast, vec![1u8; 1 << 20]).unwrap();
+    let dir = point.join("data");
+    let store = open(&dir).await;
+    let mut made = Vec::new();
+    let mut seed = 1u32;
+    let failure = loop {
+        // Incompressible bytes, 256 KiB a scene.
+        let bytes: Vec<u8> = (0..256 * 1024)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 17;
+                seed ^= seed << 5;
+                seed as u8
+            })
+            .collect();
+        let blob = match store.put_blob(bytes).await {
+            Ok(b) => b,
+            Err(e) => break e,
+        };
+        match store
+            .create_scene(NewScene {
+                blob,
+                content_type: "application/x-rayd-tri".into(),
+                name: None,
+                summary: "{}".into(),
+            })
+            .await
+        {
+            Ok((s, _)) => made.push(s),
+            Err(e) => break e,
+        }
+        assert!(made.len() < 100, "a 4 MiB file system never filled");
+    };
+    assert!(matches!(failure, StoreError::Full { .. }), "{failure:?}");
+    assert!(made.len() >= 2, "only {} scenes fitted", made.len());
+    assert!(temp_files(&dir).is_empty(), "{:?}", temp_files(&dir));
+    for s in &made {
+        store.get_blob(&s.id).await.unwrap();
+    }
+    // Space returns: writes work again, deletes and GC free more, and everything reopens.
+    std::fs::remove_file(&ballast).unwrap();
+    let again = scene(&store, b"space returned").await;
+    let half = made.len() / 2;
+    for s in &made[..half] {
+        store.delete_scene(&s.id).await.unwrap();
+    }
+    assert_eq!(store.gc().await.unwrap().deleted, half as u64);
+    scene(&store, &vec![5u8; 256 * 1024]).await;
+    store.close().await;
+    let store = open(&dir).await;
+    assert_eq!(store.get_blob(&again.id).await.unwrap(), b"space returned");
+    for s in &made[half..] {
+        store.get_blob(&s.id).await.unwrap();
+    }
+    store.close().await;
+}
