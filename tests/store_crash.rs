@@ -115,7 +115,8 @@ async fn child(dir: &Path) {
     let store = Store::open(dir, options()).await.expect("child open");
     store.recover().await.unwrap();
     let mut rng = Rng(seed());
-    println!("ACK ready .");
+    // A new line first: libtest has printed "test crash_child ... " without one.
+    println!("\nACK ready .");
     // Bounded, in case the parent is gone and no kill comes.
     for i in 0..100_000u64 {
         let scene = if i % 4 == 3 {
@@ -143,7 +144,10 @@ async fn child(dir: &Path) {
             .unwrap();
         println!("ACK scene {} {} .", rec.id, scene.1);
         let tri = store
-            .put_blob(rng.bytes(36 * (1 + rng.below(100) as usize)))
+            .put_blob({
+                let n = 36 * (1 + rng.below(100) as usize);
+                rng.bytes(n)
+            })
             .await
             .unwrap();
         let v = store.add_version(&rec.id, &tri).await.unwrap();
@@ -167,7 +171,10 @@ async fn child(dir: &Path) {
             continue;
         }
         let result = store
-            .put_blob(rng.bytes(1 + rng.below(32 * 1024) as usize))
+            .put_blob({
+                let n = 1 + rng.below(32 * 1024) as usize;
+                rng.bytes(n)
+            })
             .await
             .unwrap();
         store

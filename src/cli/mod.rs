@@ -1,9 +1,10 @@
-//! The command line (contract §4): `info`, `trace`, `render`, `bench`, `serve` and
-//! `healthcheck`.
+//! The command line (contract §4): `info`, `trace`, `render`, `bench`, `serve`,
+//! `healthcheck` and `backup`.
 //!
 //! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
 //! stderr and exits non-zero. Parsing happens here; the work happens in the library.
 
+mod backup;
 mod bench;
 mod info;
 mod render;
@@ -63,6 +64,9 @@ pub enum CliError {
     /// A job failed.
     #[error(transparent)]
     Job(#[from] crate::jobs::JobError),
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
 }
 
 #[derive(Parser, Debug)]
@@ -90,6 +94,8 @@ enum Command {
     Serve(crate::service::ServeArgs),
     /// Probe a running service; exit 0 when it answers 200.
     Healthcheck(serve::HealthcheckArgs),
+    /// Copy a data directory (live or not) to a new directory that opens as a store.
+    Backup(backup::BackupArgs),
 }
 
 /// Runs the command line and turns the outcome into an exit code.
@@ -104,6 +110,7 @@ pub fn main() -> ExitCode {
             Command::Bench(a) => bench::run(a),
             Command::Serve(a) => serve::run(a),
             Command::Healthcheck(a) => serve::healthcheck(a),
+            Command::Backup(a) => backup::run(a),
         });
     match result {
         Ok(json) => {

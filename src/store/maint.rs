@@ -9,7 +9,7 @@ use std::time::SystemTime;
 use sqlx::sqlite::SqliteConnectOptions;
 use sqlx::{Connection, Row, SqliteConnection};
 
-use super::blob::{create_dir_durable, sync_dir, BlobId};
+use super::blob::{create_dir_durable, sync_dir, BlobDir, BlobId};
 use super::error::{Result, StoreError};
 use super::records::{JobRecord, Millis};
 use super::{blocking, Store, DB_FILE};
@@ -128,71 +128,129 @@ impl Store {
     /// then every blob that snapshot names, verified while copied. `dest` then opens as a
     /// store. GC waits while a backup runs, so no blob of the snapshot vanishes mid-copy.
     pub async fn backup(&self, dest: impl AsRef<Path>) -> Result<BackupReport> {
-        let dest = dest.as_ref().to_path_buf();
-        match std::fs::read_dir(&dest) {
-            Ok(mut entries) => {
-                if entries.next().is_some() {
-                    return Err(StoreError::invalid(
-                        "backup destination",
-                        format!("{} exists and is not empty", dest.display()),
-                    ));
-                }
-            }
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(e) => return Err(StoreError::io(&dest, e)),
-        }
-        let db = dest.join(DB_FILE);
-        let db_text = db.to_str().ok_or_else(|| {
-            StoreError::invalid(
-                "backup destination",
-                format!("{} is not valid UTF-8", dest.display()),
-            )
-        })?;
-        let blobs_dest = dest.join("blobs");
-        {
-            let b = blobs_dest.clone();
-            blocking(&self.inner.dir, move || create_dir_durable(&b)).await?;
-        }
         let _gate = self.inner.gc_gate.read().await;
-        // SQLite-specific (PostgreSQL would use pg_dump or a base backup).
-        sqlx::query("VACUUM INTO ?")
-            .bind(db_text)
-            .execute(&self.inner.reader)
-            .await?;
-        {
-            let (db, dest) = (db.clone(), dest.clone());
-            blocking(&self.inner.dir, move || {
-                std::fs::File::open(&db)
-                    .and_then(|f| f.sync_all())
-                    .map_err(|e| StoreError::io(&db, e))?;
-                sync_dir(&dest)
-            })
-            .await?;
-        }
-        let mut snapshot = SqliteConnection::connect_with(
-            &SqliteConnectOptions::new().filename(&db).read_only(true),
+        let mut conn = self.inner.reader.acquire().await?;
+        backup_into(
+            &mut conn,
+            &self.inner.blobs.root,
+            &self.inner.dir,
+            dest.as_ref(),
         )
-        .await?;
-        let ids: Vec<String> = sqlx::query(REFERENCED_BLOBS)
-            .fetch_all(&mut snapshot)
-            .await?
-            .iter()
-            .map(|r| r.try_get::<String, _>(0))
-            .collect::<Result<_, _>>()?;
-        snapshot.close().await?;
-        let blobs = Arc::clone(&self.inner.blobs);
-        blocking(&self.inner.dir, move || {
-            let mut report = BackupReport::default();
-            for id in ids {
-                let id = BlobId::parse(&id).ok_or_else(|| StoreError::Corrupt {
-                    blob: id.clone(),
-                    detail: "a record names a blob id that is not 64 hex digits".into(),
-                })?;
-                report.bytes += blobs.copy_verified_to(&id, &blobs_dest)?;
-                report.blobs += 1;
-            }
-            Ok(report)
-        })
         .await
     }
+
+    /// Backs up the store in `dir` from outside it, for `rayd backup`: through
+    /// [`Store::open`] and [`Store::backup`] when no process holds the store; else beside
+    /// the process that does, through a read-only connection (SQLite lets another process
+    /// read a WAL database). In that case that process's GC is not held off: if it
+    /// collects a blob the snapshot names during the copy (the blob became unreferenced
+    /// after the snapshot and is older than its grace period), the backup fails with
+    /// `NotFound` and can simply be run again.
+    pub async fn backup_dir(dir: impl AsRef<Path>, dest: impl AsRef<Path>) -> Result<BackupReport> {
+        let dir = dir.as_ref();
+        if !dir.join(DB_FILE).is_file() {
+            return Err(StoreError::not_found(
+                "store",
+                dir.join(DB_FILE).display().to_string(),
+            ));
+        }
+        match Store::open(dir, super::StoreOptions::default()).await {
+            Ok(store) => {
+                let report = store.backup(dest).await;
+                store.close().await;
+                report
+            }
+            Err(StoreError::Locked { .. }) => {
+                let mut conn = SqliteConnection::connect_with(
+                    &SqliteConnectOptions::new()
+                        .filename(dir.join(DB_FILE))
+                        .read_only(true),
+                )
+                .await?;
+                let report = backup_into(&mut conn, &dir.join("blobs"), dir, dest.as_ref()).await;
+                conn.close().await?;
+                report
+            }
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// The work of a backup, from a connection to the source database and its blobs.
+async fn backup_into(
+    conn: &mut SqliteConnection,
+    blobs_root: &Path,
+    dir: &Path,
+    dest: &Path,
+) -> Result<BackupReport> {
+    let dest = dest.to_path_buf();
+    match std::fs::read_dir(&dest) {
+        Ok(mut entries) => {
+            if entries.next().is_some() {
+                return Err(StoreError::invalid(
+                    "backup destination",
+                    format!("{} exists and is not empty", dest.display()),
+                ));
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(StoreError::io(&dest, e)),
+    }
+    let db = dest.join(DB_FILE);
+    let db_text = db.to_str().ok_or_else(|| {
+        StoreError::invalid(
+            "backup destination",
+            format!("{} is not valid UTF-8", dest.display()),
+        )
+    })?;
+    let blobs_dest = dest.join("blobs");
+    {
+        let b = blobs_dest.clone();
+        blocking(dir, move || create_dir_durable(&b)).await?;
+    }
+    // SQLite-specific (PostgreSQL would use pg_dump or a base backup).
+    sqlx::query("VACUUM INTO ?")
+        .bind(db_text)
+        .execute(&mut *conn)
+        .await?;
+    {
+        let (db, dest) = (db.clone(), dest.clone());
+        blocking(dir, move || {
+            std::fs::File::open(&db)
+                .and_then(|f| f.sync_all())
+                .map_err(|e| StoreError::io(&db, e))?;
+            sync_dir(&dest)
+        })
+        .await?;
+    }
+    let mut snapshot =
+        SqliteConnection::connect_with(&SqliteConnectOptions::new().filename(&db).read_only(true))
+            .await?;
+    let ids: Vec<String> = sqlx::query(REFERENCED_BLOBS)
+        .fetch_all(&mut snapshot)
+        .await?
+        .iter()
+        .map(|r| r.try_get::<String, _>(0))
+        .collect::<Result<_, _>>()?;
+    snapshot.close().await?;
+    let root = blobs_root.to_path_buf();
+    blocking(dir, move || {
+        // Only reads and copies: no `BlobDir::prepare`, which would remove the temporary
+        // files of a live writer in another process.
+        let source = BlobDir {
+            root,
+            quota: super::blob::Quota::new(None, 0),
+        };
+        let mut report = BackupReport::default();
+        for id in ids {
+            let id = BlobId::parse(&id).ok_or_else(|| StoreError::Corrupt {
+                blob: id.clone(),
+                detail: "a record names a blob id that is not 64 hex digits".into(),
+            })?;
+            report.bytes += source.copy_verified_to(&id, &blobs_dest)?;
+            report.blobs += 1;
+        }
+        Ok(report)
+    })
+    .await
 }

@@ -182,10 +182,13 @@ impl Store {
         &self.inner.options
     }
 
-    /// The bytes blob files occupy, as counted for `max_bytes` (only counted when a quota
-    /// is set; 0 otherwise at open).
-    pub fn blob_bytes(&self) -> u64 {
-        self.inner.blobs.quota.used()
+    /// The bytes blob files occupy, as counted for `max_bytes`; `None` without a quota
+    /// (then nothing is counted, so that open need not visit every blob).
+    pub fn blob_bytes(&self) -> Option<u64> {
+        self.inner
+            .options
+            .max_bytes
+            .map(|_| self.inner.blobs.quota.used())
     }
 
     /// Stores bytes as a blob and returns its id. Storing the same bytes twice keeps one
@@ -278,9 +281,7 @@ impl Store {
             let _gate = self.inner.gc_gate.write().await;
             let blobs = Arc::clone(&self.inner.blobs);
             let id = id.clone();
-            if let Err(e) = blocking(&self.inner.dir, move || blobs.quarantine(&id)).await {
-                return Err(e);
-            }
+            blocking(&self.inner.dir, move || blobs.quarantine(&id)).await?;
         }
         r
     }

@@ -91,9 +91,7 @@ impl JobKind {
         match s {
             "trace" => Ok(JobKind::Trace),
             "render" => Ok(JobKind::Render),
-            _ => Err(StoreError::Conflict(format!(
-                "the database holds an unknown job kind {s:?}"
-            ))),
+            _ => Err(undecodable("kind", s)),
         }
     }
 }
@@ -123,13 +121,17 @@ impl JobState {
             "succeeded" => JobState::Succeeded,
             "failed" => JobState::Failed,
             "cancelled" => JobState::Cancelled,
-            _ => {
-                return Err(StoreError::Conflict(format!(
-                    "the database holds an unknown job state {s:?}"
-                )))
-            }
+            _ => return Err(undecodable("state", s)),
         })
     }
+}
+
+/// A stored value this binary cannot read (a damaged database, or one from a newer rayd
+/// that slipped past the migration check).
+fn undecodable(column: &str, value: &str) -> StoreError {
+    StoreError::Db(sqlx::Error::Decode(
+        format!("jobs.{column} holds {value:?}, which this rayd does not know").into(),
+    ))
 }
 
 /// One stored output of a job: a blob and its MIME type.

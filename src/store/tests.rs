@@ -87,6 +87,7 @@ async fn blobs_are_content_addressed_and_deduplicated() {
     let b = store.put_blob(b"world".to_vec()).await.unwrap();
     assert_ne!(a, b);
     assert_eq!(blob_files(tmp.path()), 2);
+    assert_eq!(store.blob_bytes(), None, "counted only under a quota");
     let path = store.blob_path(a.as_str()).await.unwrap();
     assert_eq!(
         path,
@@ -364,10 +365,14 @@ async fn scenes_are_created_once_per_content_and_listed_in_pages() {
         Err(StoreError::NotFound { what: "blob", .. })
     ));
 
-    let mut ids = vec![s.id.clone()];
+    let mut made = vec![(s.created_at, s.id.clone())];
     for i in 1..7 {
-        ids.push(scene(&store, format!("scene {i}").as_bytes()).await.id);
+        let s = scene(&store, format!("scene {i}").as_bytes()).await;
+        made.push((s.created_at, s.id));
     }
+    // Creation order; within one millisecond, by id (a stable total order).
+    made.sort();
+    let ids: Vec<String> = made.into_iter().map(|(_, id)| id).collect();
     let mut seen = Vec::new();
     let mut token: Option<String> = None;
     let mut pages = 0;
@@ -681,7 +686,7 @@ async fn job_submissions_are_checked_and_idempotent() {
     ));
 
     // Pages of jobs, and the scheduler's order.
-    let mut ids = vec![first.id.clone()];
+    let mut made = vec![(first.created_at, first.id.clone())];
     for p in [10u8, 90, 50, 90] {
         let (j, _) = store
             .create_job(NewJob {
@@ -691,8 +696,10 @@ async fn job_submissions_are_checked_and_idempotent() {
             })
             .await
             .unwrap();
-        ids.push(j.id);
+        made.push((j.created_at, j.id));
     }
+    made.sort();
+    let ids: Vec<String> = made.into_iter().map(|(_, id)| id).collect();
     let (p1, t1) = store.list_jobs(2, None).await.unwrap();
     let (p2, t2) = store.list_jobs(2, t1.as_deref()).await.unwrap();
     let (p3, t3) = store.list_jobs(2, t2.as_deref()).await.unwrap();
@@ -1099,7 +1106,7 @@ async fn a_full_store_fails_cleanly_and_works_again_once_space_returns() {
     };
     let store = Store::open(tmp.path(), options.clone()).await.unwrap();
     let big = scene(&store, &[7u8; 600]).await;
-    assert_eq!(store.blob_bytes(), 600);
+    assert_eq!(store.blob_bytes(), Some(600));
     match store.put_blob(vec![8u8; 600]).await {
         Err(StoreError::Full { path, detail }) => {
             assert!(path.starts_with(tmp.path().join("blobs")), "{path:?}");
@@ -1121,7 +1128,7 @@ async fn a_full_store_fails_cleanly_and_works_again_once_space_returns() {
     drop(w);
     assert!(temp_files(tmp.path()).is_empty());
     assert_eq!(blob_files(tmp.path()), 1);
-    assert_eq!(store.blob_bytes(), 600);
+    assert_eq!(store.blob_bytes(), Some(600));
     // Re-putting what is already there needs no space.
     assert_eq!(
         store.put_blob(vec![7u8; 600]).await.unwrap().as_str(),
@@ -1136,7 +1143,7 @@ async fn a_full_store_fails_cleanly_and_works_again_once_space_returns() {
     // The count survives a reopen.
     drop(store);
     let store = Store::open(tmp.path(), options).await.unwrap();
-    assert_eq!(store.blob_bytes(), 700);
+    assert_eq!(store.blob_bytes(), Some(700));
 }
 
 #[tokio::test]
@@ -1273,4 +1280,125 @@ async fn a_backup_taken_while_writing_opens_as_a_store() {
         store.backup(&backup_dir).await,
         Err(StoreError::Invalid { .. })
     ));
+}
+
+#[tokio::test]
+async fn backup_dir_copies_a_store_held_by_another_handle_or_by_none() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = tmp.path().join("data");
+    let store = open(&data).await;
+    let s = scene(&store, b"live").await;
+    // Held: the copy is taken beside the holder, through a read-only connection.
+    let live = tmp.path().join("live");
+    let report = Store::backup_dir(&data, &live).await.unwrap();
+    assert_eq!((report.blobs, report.bytes), (1, 4));
+    // The holder's streams in progress are left alone.
+    let mut w = store.blob_writer().await.unwrap();
+    w.write(b"in flight").await.unwrap();
+    Store::backup_dir(&data, tmp.path().join("again"))
+        .await
+        .unwrap();
+    assert_eq!(temp_files(&data).len(), 1);
+    drop(w);
+    store.close().await;
+    // Not held: through the store.
+    let cold = tmp.path().join("cold");
+    Store::backup_dir(&data, &cold).await.unwrap();
+    for dir in [&live, &cold] {
+        let copy = open(dir).await;
+        assert_eq!(copy.get_scene(&s.id).await.unwrap(), s);
+        assert_eq!(copy.get_blob(&s.id).await.unwrap(), b"live");
+    }
+    assert!(matches!(
+        Store::backup_dir(tmp.path().join("nothing"), tmp.path().join("x")).await,
+        Err(StoreError::NotFound { what: "store", .. })
+    ));
+}
+
+/// A real full disk: a 4 MiB tmpfs, where mounting works (as root with the capability; the
+/// test says so and returns elsewhere). Fills it until a write fails, which must be `Full`
+/// and leave nothing half-written, then frees space and writes again.
+#[cfg(target_os = "linux")]
+#[tokio::test]
+async fn a_real_full_tmpfs_reports_full_and_recovers() {
+    struct Mount(PathBuf);
+    impl Drop for Mount {
+        fn drop(&mut self) {
+            let _ = std::process::Command::new("umount")
+                .arg("-l")
+                .arg(&self.0)
+                .status();
+        }
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let point = tmp.path().join("small");
+    std::fs::create_dir(&point).unwrap();
+    let mounted = std::process::Command::new("mount")
+        .args(["-t", "tmpfs", "-o", "size=4m", "tmpfs"])
+        .arg(&point)
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !mounted {
+        eprintln!("skipped: cannot mount a tmpfs here (needs root)");
+        return;
+    }
+    let _mount = Mount(point.clone());
+    // Someone else's file, removed later to make space "return".
+    let ballast = point.join("ballast");
+    std::fs::write(&ballast, vec![1u8; 1 << 20]).unwrap();
+    let dir = point.join("data");
+    let store = open(&dir).await;
+    let mut made = Vec::new();
+    let mut seed = 1u32;
+    let failure = loop {
+        // Incompressible bytes, 256 KiB a scene.
+        let bytes: Vec<u8> = (0..256 * 1024)
+            .map(|_| {
+                seed ^= seed << 13;
+                seed ^= seed >> 17;
+                seed ^= seed << 5;
+                seed as u8
+            })
+            .collect();
+        let blob = match store.put_blob(bytes).await {
+            Ok(b) => b,
+            Err(e) => break e,
+        };
+        match store
+            .create_scene(NewScene {
+                blob,
+                content_type: "application/x-rayd-tri".into(),
+                name: None,
+                summary: "{}".into(),
+            })
+            .await
+        {
+            Ok((s, _)) => made.push(s),
+            Err(e) => break e,
+        }
+        assert!(made.len() < 100, "a 4 MiB file system never filled");
+    };
+    assert!(matches!(failure, StoreError::Full { .. }), "{failure:?}");
+    assert!(made.len() >= 2, "only {} scenes fitted", made.len());
+    assert!(temp_files(&dir).is_empty(), "{:?}", temp_files(&dir));
+    for s in &made {
+        store.get_blob(&s.id).await.unwrap();
+    }
+    // Space returns: writes work again, deletes and GC free more, and everything reopens.
+    std::fs::remove_file(&ballast).unwrap();
+    let again = scene(&store, b"space returned").await;
+    let half = made.len() / 2;
+    for s in &made[..half] {
+        store.delete_scene(&s.id).await.unwrap();
+    }
+    assert_eq!(store.gc().await.unwrap().deleted, half as u64);
+    scene(&store, &vec![5u8; 256 * 1024]).await;
+    store.close().await;
+    let store = open(&dir).await;
+    assert_eq!(store.get_blob(&again.id).await.unwrap(), b"space returned");
+    for s in &made[half..] {
+        store.get_blob(&s.id).await.unwrap();
+    }
+    store.close().await;
 }
