@@ -547,11 +547,16 @@ fn free_port() -> u16 {
 
 /// One blocking GET; the status code.
 fn http_get(port: u16, path: &str) -> Option<u16> {
+    http_get_with(port, path, "")
+}
+
+/// One blocking GET with extra header lines (each ending in CRLF); the status code.
+fn http_get_with(port: u16, path: &str, headers: &str) -> Option<u16> {
     let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
     s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
     write!(
         s,
-        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        "GET {path} HTTP/1.1\r\nHost: x\r\n{headers}Connection: close\r\n\r\n"
     )
     .ok()?;
     let mut out = String::new();
@@ -564,6 +569,8 @@ fn real_server_starts_probes_and_stops_within_grace() {
     let dir = tempfile::tempdir().unwrap();
     let port = free_port();
     let addr = format!("127.0.0.1:{port}");
+    let tokens = dir.path().join("tokens");
+    std::fs::write(&tokens, "old-token\n").unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_rayd"))
         .args([
             "serve",
@@ -574,6 +581,8 @@ fn real_server_starts_probes_and_stops_within_grace() {
             "--header-timeout",
             "1",
         ])
+        .arg("--token-file")
+        .arg(&tokens)
         .arg("--data-dir")
         .arg(dir.path().join("data"))
         .stdout(Stdio::piped())
@@ -684,13 +693,13 @@ fn real_server_starts_probes_and_stops_within_grace() {
     let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
     assert_eq!(v["drained"], true, "{out}");
 
-    // Address reuse: a new server binds the same port at once.
+    // Address reuse: a new server binds the same port at once (logging JSON this time).
     let mut again = Command::new(env!("CARGO_BIN_EXE_rayd"))
-        .args(["serve", "--addr", &addr])
+        .args(["serve", "--addr", &addr, "--log-format", "json"])
         .arg("--data-dir")
         .arg(dir.path().join("data"))
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let start = Instant::now();
@@ -704,6 +713,27 @@ fn real_server_starts_probes_and_stops_within_grace() {
     }
     let _ = again.kill();
     let _ = again.wait();
+    let mut log = String::new();
+    again
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut log)
+        .unwrap();
+    let lines: Vec<serde_json::Value> = log
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: not JSON: {l}")))
+        .collect();
+    assert!(lines.iter().any(|l| l["message"] == "listening"), "{log}");
+    // The access log line carries the request's span: id, method, route template.
+    assert!(
+        lines.iter().any(|l| l["span"]["route"] == "/healthz"
+            && l["span"]["method"] == "GET"
+            && l["span"]["request_id"]
+                .as_str()
+                .is_some_and(|id| !id.is_empty())),
+        "{log}"
+    );
 }
 
 #[test]

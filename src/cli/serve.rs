@@ -171,7 +171,7 @@ pub(super) struct HealthcheckArgs {
 
 /// GETs the URL; succeeds (exit 0) only on a 200.
 pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliError> {
-    let usage = |m: String| CliError::Usage(m);
+    let usage = CliError::Usage;
     if !(a.timeout.is_finite() && a.timeout > 0.0) {
         return Err(usage(format!(
             "--timeout {} is not a positive number of seconds",

@@ -174,7 +174,7 @@ impl ServeArgs {
 /// Parses a non-negative, finite number of seconds.
 fn parse_seconds(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
-        Ok(x) if x.is_finite() && x >= 0.0 && x < 1e9 => Ok(x),
+        Ok(x) if (0.0..1e9).contains(&x) => Ok(x),
         _ => Err(format!(
             "'{s}' is not a number of seconds (a finite number from 0 up)"
         )),

@@ -54,10 +54,14 @@ pub(crate) struct ProblemExt {
     pub(crate) internal: Option<String>,
 }
 
-/// An error answered to the client as a problem document.
+/// An error answered to the client as a problem document. Boxed, so that `Result<T,
+/// ApiError>` stays one pointer wide on the error side.
 #[derive(Debug, Clone, thiserror::Error)]
-#[error("{status} {title}: {detail}")]
-pub struct ApiError {
+#[error("{} {}: {}", .0.status, .0.title, .0.detail)]
+pub struct ApiError(Box<Inner>);
+
+#[derive(Debug, Clone)]
+struct Inner {
     status: StatusCode,
     slug: &'static str,
     title: &'static str,
@@ -76,7 +80,7 @@ impl ApiError {
         title: &'static str,
         detail: impl Into<Cow<'static, str>>,
     ) -> Self {
-        ApiError {
+        ApiError(Box::new(Inner {
             status,
             slug,
             title,
@@ -86,7 +90,7 @@ impl ApiError {
             www_authenticate: None,
             allow: None,
             internal: None,
-        }
+        }))
     }
 
     /// 400: a malformed body, parameter or header.
@@ -108,7 +112,7 @@ impl ApiError {
             "Unauthorized",
             detail,
         );
-        e.www_authenticate = Some(if invalid {
+        e.0.www_authenticate = Some(if invalid {
             "Bearer realm=\"rayd\", error=\"invalid_token\""
         } else {
             "Bearer realm=\"rayd\""
@@ -129,7 +133,7 @@ impl ApiError {
             "Method not allowed",
             detail,
         );
-        e.allow = allow;
+        e.0.allow = allow;
         e
     }
 
@@ -179,7 +183,7 @@ impl ApiError {
             "Service unavailable",
             detail,
         );
-        e.retry_after = Some(retry_after_s);
+        e.0.retry_after = Some(retry_after_s);
         e
     }
 
@@ -202,7 +206,7 @@ impl ApiError {
             "Internal server error",
             "the server failed to answer this request; the log has the cause under this request id",
         );
-        e.internal = Some(cause.to_string());
+        e.0.internal = Some(cause.to_string());
         e
     }
 
@@ -212,7 +216,7 @@ impl ApiError {
     pub fn with(mut self, key: &str, value: impl Serialize) -> Self {
         if !matches!(key, "type" | "title" | "status" | "instance" | "detail") {
             let v = serde_json::to_value(value).unwrap_or(Value::Null);
-            self.extensions.insert(key.to_owned(), v);
+            self.0.extensions.insert(key.to_owned(), v);
         }
         self
     }
@@ -224,34 +228,34 @@ impl ApiError {
 
     /// Sets `Retry-After` on an error of any status.
     pub fn with_retry_after(mut self, seconds: u64) -> Self {
-        self.retry_after = Some(seconds);
+        self.0.retry_after = Some(seconds);
         self
     }
 
     /// The status code.
     pub fn status(&self) -> StatusCode {
-        self.status
+        self.0.status
     }
 
     /// The detail message.
     pub fn detail(&self) -> &str {
-        &self.detail
+        &self.0.detail
     }
 
     /// The extension members.
     pub fn extensions(&self) -> &Map<String, Value> {
-        &self.extensions
+        &self.0.extensions
     }
 
     /// The problem document (without `instance`, which the middleware adds).
     pub fn problem(&self) -> Problem {
         Problem {
-            kind: format!("/problems/{}", self.slug),
-            title: self.title.to_owned(),
-            status: self.status.as_u16(),
+            kind: format!("/problems/{}", self.0.slug),
+            title: self.0.title.to_owned(),
+            status: self.0.status.as_u16(),
             instance: None,
-            detail: self.detail.to_string(),
-            extensions: self.extensions.clone(),
+            detail: self.0.detail.to_string(),
+            extensions: self.0.extensions.clone(),
         }
     }
 }
@@ -259,21 +263,22 @@ impl ApiError {
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let problem = self.problem();
-        let mut res = (self.status, problem.to_body()).into_response();
+        let inner = *self.0;
+        let mut res = (inner.status, problem.to_body()).into_response();
         let h = res.headers_mut();
         h.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
-        if let Some(s) = self.retry_after {
+        if let Some(s) = inner.retry_after {
             h.insert(header::RETRY_AFTER, HeaderValue::from(s));
         }
-        if let Some(w) = self.www_authenticate {
+        if let Some(w) = inner.www_authenticate {
             h.insert(header::WWW_AUTHENTICATE, HeaderValue::from_static(w));
         }
-        if let Some(allow) = self.allow.and_then(|a| HeaderValue::from_str(&a).ok()) {
+        if let Some(allow) = inner.allow.and_then(|a| HeaderValue::from_str(&a).ok()) {
             h.insert(header::ALLOW, allow);
         }
         res.extensions_mut().insert(ProblemExt {
             problem,
-            internal: self.internal,
+            internal: inner.internal,
         });
         res
     }
