@@ -631,3 +631,56 @@ fn malformed_appearance_is_an_error_only_when_asked_for() {
         "{e}"
     );
 }
+
+#[test]
+fn every_shared_scene_loads_with_shading_data() {
+    let Some(d) = dir("shared") else { return };
+    let mut names: Vec<String> = std::fs::read_dir(&d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".glb"))
+        .collect();
+    names.sort();
+    let mut failures = Vec::new();
+    for name in names {
+        let path = d.join(&name);
+        let Ok(g) = load_scene(&path, &LoadOptions::default()) else {
+            continue;
+        };
+        match load_scene_with(&path, &LoadOptions::default(), Parts::Shading) {
+            Err(e) => failures.push(format!("{name}: {e}")),
+            Ok(s) => {
+                let sh = s.shading.as_ref().unwrap();
+                let vertices = [
+                    sh.normals.len(),
+                    sh.tangents.len(),
+                    sh.uv0.len(),
+                    sh.uv1.len(),
+                    sh.colors.len(),
+                ];
+                let n = vertices.iter().copied().max().unwrap_or(0);
+                if s.triangles != g.triangles
+                    || sh.corners.len() != s.triangles.len()
+                    || sh.materials.len() != s.triangles.len()
+                    || vertices.iter().any(|&v| v != 0 && v != n)
+                    || sh
+                        .corners
+                        .iter()
+                        .flatten()
+                        .any(|&v| v as usize >= n.max(1) && n > 0)
+                    || sh
+                        .materials
+                        .iter()
+                        .any(|&m| m != Shading::DEFAULT_MATERIAL && m as usize >= s.materials.len())
+                    || sh
+                        .normals
+                        .iter()
+                        .any(|v| !(v.length() == 0.0 || (v.length() - 1.0).abs() < 1e-5))
+                {
+                    failures.push(format!("{name}: inconsistent shading data"));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
