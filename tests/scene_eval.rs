@@ -47,7 +47,8 @@ const OLD_POSES: &[(&str, &str, usize, [u64; 13])] = &[
 ];
 
 /// Times around a scene's longest animation `d`: before the first key, at it, between
-/// keys, at and after the last.
+/// keys, at and after the last. (0.7071 is just a fraction, as recorded.)
+#[allow(clippy::approx_constant)]
 fn times(d: f64) -> [f64; 12] {
     [
         -1.0,
@@ -360,7 +361,7 @@ fn metal_rough_spheres_factors_per_triangle() {
     let sh = s.shading.as_ref().unwrap();
     assert_eq!(sh.materials.len(), 1_040_409);
     // Every material is used; the triangles of primitives without one use the default.
-    let mut used = vec![false; 98];
+    let mut used = [false; 98];
     let mut default = 0;
     for &m in &sh.materials {
         match used.get_mut(m as usize) {
@@ -396,7 +397,7 @@ fn texture_transforms_and_samplers() {
         .unwrap()
         .transform
         .unwrap();
-    assert_eq!(t.rotation, 0.392_699_08);
+    assert_eq!(t.rotation, std::f32::consts::FRAC_PI_8);
     let all = by_name("All").base_color_texture.unwrap();
     let t = all.transform.unwrap();
     assert_eq!(
@@ -524,7 +525,7 @@ fn lights_file(extra_light: serde_json::Value) -> Vec<u8> {
         "nodes": [
             {"mesh": 0, "children": [1, 2]},
             {"translation": [0, 3, 0], "extensions": {"KHR_lights_punctual": {"light": 0}}},
-            {"rotation": [0, 0.7071068, 0, 0.7071068], "extensions": {"KHR_lights_punctual": {"light": 1}}},
+            {"rotation": [0, std::f32::consts::FRAC_1_SQRT_2, 0, std::f32::consts::FRAC_1_SQRT_2], "extensions": {"KHR_lights_punctual": {"light": 1}}},
             {"translation": [9, 0, 0], "extensions": {"KHR_lights_punctual": {"light": 2}}}
         ],
         "scenes": [{"nodes": [0, 3]}]

@@ -34,12 +34,18 @@ pub(super) struct Decoded {
     pub shading: Arc<PrimShading>,
 }
 
+/// A decoded primitive as cached: `None` for one without positions.
+type Cached = Option<(Arc<Primitive>, Arc<PrimShading>)>;
+
+/// An attribute's values and its accessor type.
+type Values = Option<(Arc<[f64]>, Type)>;
+
 /// Decodes primitives once each and shares them between instances.
 pub(super) struct Meshes {
     quantized: bool,
     /// Whether shading attributes are decoded too.
     shading: bool,
-    prims: HashMap<(usize, usize), Option<(Arc<Primitive>, Arc<PrimShading>)>>,
+    prims: HashMap<(usize, usize), Cached>,
 }
 
 fn bad_prim(mesh: usize, primitive: usize, reason: String) -> GltfError {
@@ -140,13 +146,7 @@ impl Meshes {
         Ok(decoded.map(|(prim, shading)| Decoded { prim, shading }))
     }
 
-    #[allow(clippy::type_complexity)]
-    fn decode(
-        &self,
-        data: &mut Data<'_>,
-        m: usize,
-        pi: usize,
-    ) -> Result<Option<(Arc<Primitive>, Arc<PrimShading>)>, GltfError> {
+    fn decode(&self, data: &mut Data<'_>, m: usize, pi: usize) -> Result<Cached, GltfError> {
         let p = &data.root.meshes[m].primitives[pi];
         let Some(pos_a) = attribute(p, Semantic::Positions) else {
             return Ok(None);
@@ -327,7 +327,7 @@ impl Meshes {
         name: &str,
         types: &'static [Type],
         components: &'static [(json::accessor::ComponentType, Option<bool>)],
-    ) -> Result<Option<(Arc<[f64]>, Type)>, GltfError> {
+    ) -> Result<Values, GltfError> {
         let Some(a) = a else { return Ok(None) };
         data.accessor(a, &|| format!("mesh {m} primitive {pi} {name}"))?;
         let expect = Expect {
