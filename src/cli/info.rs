@@ -27,7 +27,13 @@ pub(super) struct InfoArgs {
 }
 
 pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
-    let scene = crate::formats::load_scene(&a.scene, &super::load_options(a.time)?)?;
+    // With shading data, so that `bytes_by_part` tells what a render would hold; `bytes`
+    // stays the memory held for tracing.
+    let scene = crate::formats::load_scene_with(
+        &a.scene,
+        &super::load_options(a.time)?,
+        crate::formats::Parts::Shading,
+    )?;
     let bounds = scene.bounds().map(|b| json!({"min": b.min, "max": b.max}));
     let animations: Vec<_> = scene
         .animations
@@ -35,6 +41,13 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         .map(|an| json!({"name": an.name, "duration": an.duration}))
         .collect();
     let mut bytes = scene.bytes();
+    let parts = scene.bytes_by_part();
+    let mut by_part = json!({
+        "positions": parts.positions,
+        "attributes": parts.attributes,
+        "textures": parts.textures,
+        "animation": parts.animation,
+    });
     let mut out = json!({
         "triangles": scene.triangles.len(),
         "bounds": bounds,
@@ -64,6 +77,7 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         let accel = pool.install(|| crate::accel::build(kind, &scene.triangles, &options))?;
         let build_seconds = t0.elapsed().as_secs_f64();
         bytes += accel.bytes();
+        by_part["structures"] = json!(accel.bytes());
         out["accel"] = json!({
             "name": accel.name(),
             "build": a.build.name(),
@@ -74,5 +88,6 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         });
     }
     out["bytes"] = json!(bytes);
+    out["bytes_by_part"] = by_part;
     Ok(out)
 }
