@@ -113,34 +113,27 @@ pub fn scene_info(scene: &Scene) -> serde_json::Value {
 }
 
 /// Parses an upload (CPU work: call on the pool).
-fn parse(kind: UploadKind, bytes: &[u8], time: Option<f64>) -> Result<Scene, AppError> {
+fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
     let upload = |detail: String| AppError::BadUpload {
         detail,
         byte_offset: None,
     };
     match kind {
-        UploadKind::Tri => {
-            if time.is_some() {
-                return Err(AppError::BadParameter {
-                    field: "time",
-                    detail: "a TRI1 scene has no animation".into(),
-                });
-            }
-            read_tri(bytes)
-                .map(Scene::from_triangles)
-                .map_err(|e| upload(e.to_string()))
-        }
+        UploadKind::Tri => read_tri(bytes)
+            .map(Scene::from_triangles)
+            .map_err(|e| upload(e.to_string())),
         UploadKind::Glb | UploadKind::Gltf => {
-            crate::formats::gltf::load(bytes, None, &LoadOptions { time })
+            crate::formats::gltf::load(bytes, None, &LoadOptions { time: None })
                 .map_err(|e| upload(e.to_string()))
         }
     }
 }
 
-/// A parsed scene and the bytes it came from (to evaluate other times).
+/// A scene's cameras at one pose.
+type Cameras = Arc<Vec<crate::scene::Camera>>;
+
+/// A parsed scene: its static pose, and the rig that poses it at other times.
 struct Loaded {
-    kind: UploadKind,
-    bytes: Arc<Vec<u8>>,
     scene: Arc<Scene>,
 }
 
@@ -153,7 +146,7 @@ pub(super) struct SceneCache {
 #[derive(Default)]
 struct CacheState {
     loaded: HashMap<String, Arc<Loaded>>,
-    geometry: HashMap<GeometryKey, (Arc<Vec<Triangle>>, u64)>,
+    geometry: HashMap<GeometryKey, (Arc<Vec<Triangle>>, Cameras, u64)>,
     bytes: usize,
     clock: u64,
 }
@@ -170,22 +163,22 @@ impl SceneCache {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    fn geometry(&self, key: &GeometryKey) -> Option<Arc<Vec<Triangle>>> {
+    fn geometry(&self, key: &GeometryKey) -> Option<(Arc<Vec<Triangle>>, Cameras)> {
         let mut s = self.lock();
         s.clock += 1;
         let now = s.clock;
-        s.geometry.get_mut(key).map(|(g, used)| {
+        s.geometry.get_mut(key).map(|(g, c, used)| {
             *used = now;
-            Arc::clone(g)
+            (Arc::clone(g), Arc::clone(c))
         })
     }
 
-    fn keep_geometry(&self, key: GeometryKey, tris: Arc<Vec<Triangle>>) {
+    fn keep_geometry(&self, key: GeometryKey, tris: Arc<Vec<Triangle>>, cameras: Cameras) {
         let bytes = std::mem::size_of_val(&tris[..]);
         let mut s = self.lock();
         s.clock += 1;
         let now = s.clock;
-        if let Some((old, _)) = s.geometry.insert(key, (tris, now)) {
+        if let Some((old, _, _)) = s.geometry.insert(key, (tris, cameras, now)) {
             s.bytes -= std::mem::size_of_val(&old[..]);
         }
         s.bytes += bytes;
@@ -193,10 +186,10 @@ impl SceneCache {
             let oldest = s
                 .geometry
                 .iter()
-                .min_by_key(|(_, (_, used))| *used)
+                .min_by_key(|(_, (_, _, used))| *used)
                 .map(|(k, _)| k.clone())
                 .expect("not empty");
-            let (g, _) = s.geometry.remove(&oldest).expect("just found");
+            let (g, _, _) = s.geometry.remove(&oldest).expect("just found");
             s.bytes -= std::mem::size_of_val(&g[..]);
         }
     }
@@ -211,7 +204,7 @@ impl SceneCache {
             .cloned()
             .collect();
         for k in keys {
-            let (g, _) = s.geometry.remove(&k).expect("listed");
+            let (g, _, _) = s.geometry.remove(&k).expect("listed");
             s.bytes -= std::mem::size_of_val(&g[..]);
         }
     }
@@ -233,7 +226,7 @@ impl App {
         }
         let bytes = Arc::new(bytes);
         let b = Arc::clone(&bytes);
-        let scene = self.cpu(move || parse(kind, &b, None)).await??;
+        let scene = self.cpu(move || parse(kind, &b)).await??;
         let summary = scene_info(&scene).to_string();
         let blob = self.store().put_blob(bytes.to_vec()).await?;
         let (record, created) = self
@@ -248,8 +241,6 @@ impl App {
         self.inner.scenes.lock().loaded.insert(
             record.id.clone(),
             Arc::new(Loaded {
-                kind,
-                bytes,
                 scene: Arc::new(scene),
             }),
         );
@@ -296,10 +287,8 @@ impl App {
         })?;
         let bytes = Arc::new(self.store().get_blob(id).await?);
         let b = Arc::clone(&bytes);
-        let scene = self.cpu(move || parse(kind, &b, None)).await??;
+        let scene = self.cpu(move || parse(kind, &b)).await??;
         let loaded = Arc::new(Loaded {
-            kind,
-            bytes,
             scene: Arc::new(scene),
         });
         self.inner
@@ -334,9 +323,11 @@ impl App {
         }
         let blob = self.store().put_blob(body.to_vec()).await?;
         let version = self.store().add_version(id, &blob).await?.version;
-        self.inner
-            .scenes
-            .keep_geometry(GeometryKey::new(id, version as u32, None), Arc::new(tris));
+        self.inner.scenes.keep_geometry(
+            GeometryKey::new(id, version as u32, None),
+            Arc::new(tris),
+            Arc::new(loaded.scene.cameras.clone()),
+        );
         Ok(version)
     }
 
@@ -375,22 +366,24 @@ impl App {
         }
         let key = GeometryKey::new(id, version, time);
         let loaded = self.loaded(id).await?;
-        let cameras = Arc::new(loaded.scene.cameras.clone());
-        if let Some(tris) = self.inner.scenes.geometry(&key) {
-            return Ok((
-                Geometry {
-                    key,
-                    triangles: tris,
-                },
-                cameras,
-            ));
+        if let Some((triangles, cameras)) = self.inner.scenes.geometry(&key) {
+            return Ok((Geometry { key, triangles }, cameras));
         }
+        let mut cameras = Arc::new(loaded.scene.cameras.clone());
         let tris: Arc<Vec<Triangle>> = if version == 1 && time.is_none() {
             Arc::new(loaded.scene.triangles.clone())
-        } else if version == 1 {
+        } else if let (1, Some(t)) = (version, time) {
+            // The scene's rig re-poses it: no second parse of the file.
             let l = Arc::clone(&loaded);
-            let scene = self.cpu(move || parse(l.kind, &l.bytes, time)).await??;
-            Arc::new(scene.triangles)
+            let pose = self
+                .cpu(move || l.scene.evaluate(t, crate::scene::Compute::Positions))
+                .await?
+                .map_err(|e| AppError::BadParameter {
+                    field: "time",
+                    detail: e.to_string(),
+                })?;
+            cameras = Arc::new(pose.cameras);
+            Arc::new(pose.triangles)
         } else {
             let v = self.store().get_version(id, version as i64).await?;
             let bytes = self.store().get_blob(&v.blob).await?;
@@ -401,7 +394,7 @@ impl App {
         };
         self.inner
             .scenes
-            .keep_geometry(key.clone(), Arc::clone(&tris));
+            .keep_geometry(key.clone(), Arc::clone(&tris), Arc::clone(&cameras));
         Ok((
             Geometry {
                 key,
