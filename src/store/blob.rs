@@ -183,12 +183,14 @@ impl BlobDir {
     /// fresh upload from a concurrent GC (see [`super::Store::gc`]).
     pub(crate) fn put_bytes(&self, id: &BlobId, bytes: &[u8]) -> Result<()> {
         let dest = self.path(id);
-        if self.renew_existing(&dest, bytes.len() as u64)? {
+        let existing = self.renew_existing(&dest, bytes.len() as u64)?;
+        if existing == Existing::Renewed {
             return Ok(());
         }
         let shard = dest.parent().expect("a blob path has a shard directory");
         create_dir_durable(shard)?;
-        self.quota.reserve(bytes.len() as u64, &dest)?;
+        let len = bytes.len() as u64;
+        self.quota.reserve(len, &dest)?;
         let written = (|| {
             let mut tmp = tempfile::Builder::new()
                 .prefix(TMP_PREFIX)
@@ -197,17 +199,25 @@ impl BlobDir {
             tmp.write_all(bytes)
                 .and_then(|()| tmp.as_file().sync_all())
                 .map_err(|e| StoreError::io(tmp.path(), e))?;
-            self.install(tmp, &dest)
+            self.install(tmp, &dest, existing)
         })();
-        if written.is_err() {
-            self.quota.release(bytes.len() as u64);
+        match written {
+            Ok(true) => Ok(()),
+            // A concurrent put of the same bytes got there first: its file is as good.
+            Ok(false) => {
+                self.quota.release(len);
+                Ok(())
+            }
+            Err(e) => {
+                self.quota.release(len);
+                Err(e)
+            }
         }
-        written
     }
 
-    /// If `dest` exists with `len` bytes, renews its mtime and says so. A file of another
-    /// size is a damaged copy: it is replaced by the caller's write.
-    fn renew_existing(&self, dest: &Path, len: u64) -> Result<bool> {
+    /// If `dest` exists with `len` bytes, renews its mtime. A file of another size is a
+    /// damaged copy, to be replaced by the caller's write.
+    fn renew_existing(&self, dest: &Path, len: u64) -> Result<Existing> {
         match fs::metadata(dest) {
             Ok(meta) if meta.len() == len => {
                 let f = File::options()
@@ -216,23 +226,39 @@ impl BlobDir {
                     .map_err(|e| StoreError::io(dest, e))?;
                 f.set_modified(SystemTime::now())
                     .map_err(|e| StoreError::io(dest, e))?;
-                Ok(true)
+                Ok(Existing::Renewed)
             }
-            Ok(meta) => {
-                self.quota.release(meta.len());
-                Ok(false)
-            }
-            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(false),
+            Ok(meta) => Ok(Existing::Damaged(meta.len())),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(Existing::Absent),
             Err(e) => Err(StoreError::io(dest, e)),
         }
     }
 
     /// Renames a synced temporary file to `dest` and syncs the directory, so the new name
-    /// survives a crash. On failure the temporary file is removed (by its drop).
-    fn install(&self, tmp: tempfile::NamedTempFile, dest: &Path) -> Result<()> {
-        tmp.persist(dest)
-            .map_err(|e| StoreError::io(dest, e.error))?;
-        sync_dir(dest.parent().expect("a blob path has a parent"))
+    /// survives a crash. Replaces a damaged copy; otherwise never overwrites, so two writers
+    /// of the same new blob install one file (the loser gets `false`). On failure the
+    /// temporary file is removed (by its drop).
+    fn install(
+        &self,
+        tmp: tempfile::NamedTempFile,
+        dest: &Path,
+        existing: Existing,
+    ) -> Result<bool> {
+        let installed = match existing {
+            Existing::Damaged(old) => {
+                tmp.persist(dest)
+                    .map_err(|e| StoreError::io(dest, e.error))?;
+                self.quota.release(old);
+                true
+            }
+            _ => match tmp.persist_noclobber(dest) {
+                Ok(_) => true,
+                Err(e) if e.error.kind() == io::ErrorKind::AlreadyExists => false,
+                Err(e) => return Err(StoreError::io(dest, e.error)),
+            },
+        };
+        sync_dir(dest.parent().expect("a blob path has a parent"))?;
+        Ok(installed)
     }
 
     /// Reads and verifies a whole blob.
@@ -404,6 +430,17 @@ impl BlobDir {
     }
 }
 
+/// What [`BlobDir::renew_existing`] found at a blob's place.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Existing {
+    /// A file of the right size, whose mtime is now renewed.
+    Renewed,
+    /// A file of this other size: a damaged copy.
+    Damaged(u64),
+    /// Nothing.
+    Absent,
+}
+
 /// A streamed blob write in progress (blocking half of [`super::BlobWriter`]).
 #[derive(Debug)]
 pub(crate) struct SyncBlobWriter {
@@ -437,19 +474,24 @@ impl SyncBlobWriter {
         let id = BlobId::from_hash(hasher.finalize());
         let dest = dir.path(&id);
         let result = (|| {
-            if dir.renew_existing(&dest, len)? {
-                dir.quota.release(len);
-                return Ok(());
+            let existing = dir.renew_existing(&dest, len)?;
+            if existing == Existing::Renewed {
+                return Ok(false);
             }
             tmp.as_file()
                 .sync_all()
                 .map_err(|e| StoreError::io(tmp.path(), e))?;
             let shard = dest.parent().expect("a blob path has a shard directory");
             create_dir_durable(shard)?;
-            dir.install(tmp, &dest)
+            dir.install(tmp, &dest, existing)
         })();
         match result {
-            Ok(()) => Ok(id),
+            Ok(true) => Ok(id),
+            // A duplicate: the bytes written leave the quota, the existing file stays.
+            Ok(false) => {
+                dir.quota.release(len);
+                Ok(id)
+            }
             Err(e) => {
                 dir.quota.release(len);
                 Err(e)

@@ -80,6 +80,7 @@ fn age(path: &Path, by: Duration) {
 async fn blobs_are_content_addressed_and_deduplicated() {
     let tmp = tempfile::tempdir().unwrap();
     let store = open(tmp.path()).await;
+    assert_eq!(store.dir(), tmp.path());
     let a = store.put_blob(b"hello".to_vec()).await.unwrap();
     assert_eq!(a.as_str(), blake3::hash(b"hello").to_hex().as_str());
     let again = store.put_blob(b"hello".to_vec()).await.unwrap();
@@ -1401,4 +1402,38 @@ async fn a_real_full_tmpfs_reports_full_and_recovers() {
         store.get_blob(&s.id).await.unwrap();
     }
     store.close().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn concurrent_puts_of_the_same_new_bytes_make_one_file_counted_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        max_bytes: Some(1 << 20),
+        ..opts()
+    };
+    let store = Store::open(tmp.path(), options).await.unwrap();
+    for round in 0..5u8 {
+        let mut tasks = Vec::new();
+        for t in 0..6 {
+            let store = store.clone();
+            tasks.push(tokio::spawn(async move {
+                if t % 2 == 0 {
+                    store.put_blob(vec![round; 1000]).await.unwrap()
+                } else {
+                    let mut w = store.blob_writer().await.unwrap();
+                    w.write(&[round; 1000]).await.unwrap();
+                    w.commit().await.unwrap()
+                }
+            }));
+        }
+        let mut ids = Vec::new();
+        for t in tasks {
+            ids.push(t.await.unwrap());
+        }
+        ids.dedup();
+        assert_eq!(ids.len(), 1);
+    }
+    assert_eq!(blob_files(tmp.path()), 5);
+    assert_eq!(store.blob_bytes(), Some(5000));
+    assert!(temp_files(tmp.path()).is_empty());
 }
