@@ -218,6 +218,8 @@ async fn list_scenes(
     let (scenes, next) = app
         .scenes(page.limit.unwrap_or(0), page.page_token.as_deref())
         .await?;
+    // AIP-158: the last page's token is empty, not absent.
+    let next = next.unwrap_or_default();
     Ok(Json(json!({"scenes": scenes, "next_page_token": next})).into_response())
 }
 
@@ -353,6 +355,8 @@ async fn list_jobs(
     let (jobs, next) = app
         .jobs(page.limit.unwrap_or(0), page.page_token.as_deref())
         .await?;
+    // AIP-158: the last page's token is empty, not absent.
+    let next = next.unwrap_or_default();
     Ok(Json(json!({"jobs": jobs, "next_page_token": next})).into_response())
 }
 
