@@ -537,7 +537,7 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         let time = 0.1 * k as f64;
         let r = s.ok(
             "POST",
-            &format!("/v1/scenes/{id}/trace?accel=dacrt&time={time}"),
+            &format!("/v1/scenes/{id}/trace?accel=dacrt&version=1&time={time}"),
             octet,
             &rays,
         )?;
