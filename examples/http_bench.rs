@@ -400,7 +400,7 @@ fn camera_rays(scene: &Path, n: usize, time: Option<f64>) -> Result<Vec<u8>, Str
 fn trace_mode(o: &Opts) -> Result<(), String> {
     let rays_file = o.rays_file.as_ref().ok_or("trace needs a RAYS file")?;
     let rays = std::fs::read(rays_file).map_err(|e| format!("{}: {e}", rays_file.display()))?;
-    let n = (rays.len() - 16) / 32;
+    let n = rays.len().saturating_sub(16) / 32;
     let s = Server::start(o)?;
     let id = s.upload(&o.scene)?;
     let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel);
@@ -431,8 +431,7 @@ fn trace_mode(o: &Opts) -> Result<(), String> {
             load()
         );
     }
-    let ratios: Vec<f64> = total.iter().zip(&cli).map(|(h, c)| h / c).collect();
-    let mut ratios = ratios;
+    let mut ratios: Vec<f64> = total.iter().zip(&cli).map(|(h, c)| h / c).collect();
     println!(
         "| {} | {n} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.2} | {} |",
         o.scene.file_name().unwrap_or_default().to_string_lossy(),
