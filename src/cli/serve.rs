@@ -31,6 +31,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         &config.data_dir,
         crate::store::StoreOptions {
             result_ttl: (config.result_ttl > 0).then(|| Duration::from_secs(config.result_ttl)),
+            max_bytes: config.max_store_bytes,
             ..Default::default()
         },
     )

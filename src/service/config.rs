@@ -96,6 +96,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_HEADER_TIMEOUT", default_value_t = 10.0, value_parser = parse_seconds)]
     pub header_timeout: f64,
 
+    /// Bytes that stored blobs (uploads, geometry versions, results) may occupy in the data
+    /// directory; past it, a write fails as on a full disk (507) and nothing is half-stored.
+    /// Default: none (only the disk limits).
+    #[arg(long, env = "RAYD_MAX_STORE_BYTES")]
+    pub max_store_bytes: Option<u64>,
+
     /// Log line format: text or json.
     #[arg(long, env = "RAYD_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -135,6 +141,7 @@ impl ServeArgs {
             ("max-pixels", self.max_pixels),
             ("max-spp", u64::from(self.max_spp)),
             ("max-connections", self.max_connections as u64),
+            ("max-store-bytes", self.max_store_bytes.unwrap_or(1)),
         ] {
             if v == 0 {
                 return Err(ConfigError::Zero(name));
