@@ -225,7 +225,7 @@ fn the_service_end_to_end() {
         &octet,
         &body,
     );
-    assert!(old.body[16..].iter().any(|&b| b == 1));
+    assert!(old.body[16..].contains(&1));
     let r = s.req(
         "POST",
         &format!("{trace_path}?version=2&time=0.5"),
@@ -340,7 +340,7 @@ fn the_service_end_to_end() {
         &octet,
         &body,
     );
-    assert!(old.body[16..].iter().any(|&b| b == 1));
+    assert!(old.body[16..].contains(&1));
     assert_eq!(
         s.req("GET", &format!("/v1/jobs/{long}"), &[], &[]).json()["state"],
         "cancelled"

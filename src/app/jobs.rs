@@ -104,7 +104,7 @@ struct TraceJobRequest {
 
 /// What a job runs.
 enum Work {
-    Render(RenderSpec),
+    Render(Box<RenderSpec>),
     Trace(TraceJobRequest),
 }
 
@@ -171,7 +171,7 @@ impl App {
         };
         let (record, created) = self.store().create_job(new).await?;
         if created {
-            self.start(record.clone(), Work::Render(spec), ticket);
+            self.start(record.clone(), Work::Render(Box::new(spec)), ticket);
         }
         Ok((JobView::from_record(&record), created))
     }
@@ -267,7 +267,9 @@ impl App {
         let n = jobs.len();
         for record in jobs {
             let work = match record.kind {
-                JobKind::Render => serde_json::from_str(&record.request).map(Work::Render),
+                JobKind::Render => {
+                    serde_json::from_str(&record.request).map(|s| Work::Render(Box::new(s)))
+                }
                 JobKind::Trace => serde_json::from_str(&record.request).map(Work::Trace),
             };
             match work {

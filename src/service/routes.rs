@@ -111,7 +111,11 @@ fn job_error(e: JobError) -> ApiError {
         .with("ray_index", bad.first_index)
         .with("count", bad.count)
         .with_field("rays"),
-        JobError::Limit { what, value, limit } if what == "rays" => {
+        JobError::Limit {
+            what: "rays",
+            value,
+            limit,
+        } => {
             ApiError::payload_too_large(format!("{value} rays exceed the limit of {limit}"), limit)
         }
         JobError::Limit { what, .. } => ApiError::unprocessable(e.to_string()).with_field(what),
