@@ -15,7 +15,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 pub use jobs::{JobEvents, JobView};
-pub use scenes::{SceneView, UploadKind};
+pub use scenes::{scene_info, SceneView, UploadKind};
 pub use spec::{FramesSpec, RenderSpec, TraceParams};
 
 use crate::jobs::{Engine, JobError};

@@ -34,12 +34,6 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         &super::load_options(a.time)?,
         crate::formats::Parts::Shading,
     )?;
-    let bounds = scene.bounds().map(|b| json!({"min": b.min, "max": b.max}));
-    let animations: Vec<_> = scene
-        .animations
-        .iter()
-        .map(|an| json!({"name": an.name, "duration": an.duration}))
-        .collect();
     let mut bytes = scene.bytes();
     let parts = scene.bytes_by_part();
     let mut by_part = json!({
@@ -48,14 +42,8 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         "textures": parts.textures,
         "animation": parts.animation,
     });
-    let mut out = json!({
-        "triangles": scene.triangles.len(),
-        "bounds": bounds,
-        "meshes": scene.meshes,
-        "animations": animations,
-        "cameras": scene.cameras.len(),
-        "simd": crate::simd::selected().name(),
-    });
+    // The contract's fields, as the service's scene summaries carry them.
+    let mut out = crate::app::scene_info(&scene);
     if let Some(kind) = a.accel {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(a.threads)

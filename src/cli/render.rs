@@ -106,18 +106,28 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     };
     request.check(engine.limits(), times.len())?;
     let path = a.scene.display().to_string();
+    // Parsed once; each frame's time re-poses it through the scene's rig (bit-identical to
+    // loading the file at that time), so a sequence never reads the file again.
+    super::load_options(a.core.time)?;
+    let scene = crate::formats::load_scene(&a.scene, &Default::default())?;
     let frame_at = |time: Option<f64>| {
-        let scene = crate::formats::load_scene(&a.scene, &super::load_options(time)?)?;
-        Ok::<_, CliError>(FrameInput {
+        let (triangles, cameras) = match time {
+            None => (scene.triangles.clone(), scene.cameras.clone()),
+            Some(t) => {
+                let pose = scene
+                    .evaluate(t, crate::scene::Compute::Positions)
+                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?;
+                (pose.triangles, pose.cameras)
+            }
+        };
+        Ok(FrameInput {
             geometry: Geometry {
                 key: GeometryKey::new(&path, 1, time),
-                triangles: Arc::new(scene.triangles),
+                triangles: Arc::new(triangles),
             },
-            cameras: Arc::new(scene.cameras),
+            cameras: Arc::new(cameras),
         })
     };
-    let frame_at =
-        |time| frame_at(time).map_err(|e| crate::jobs::JobError::Geometry(e.to_string()));
     let pattern = a.out.display().to_string();
     let mut written = Vec::new();
     let report = engine.render(

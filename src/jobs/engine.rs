@@ -102,9 +102,8 @@ impl Engine {
         &self.sched
     }
 
-    /// Runs `f` on the pool without waiting for the scheduler's lease (small CPU work a
-    /// request needs before it can be queued, such as parsing an upload) and hands the
-    /// result to `done`.
+    /// Runs `f` on the pool without waiting for the scheduler's lease: small CPU work a
+    /// request needs before it can be queued, such as parsing an upload.
     pub fn spawn(&self, f: impl FnOnce() + Send + 'static) {
         self.pool.spawn(f);
     }

@@ -168,11 +168,6 @@ impl Scheduler {
     pub fn shut_down(&self) {
         self.lock().shutting_down = true;
     }
-
-    /// Whether [`Scheduler::shut_down`] was called.
-    pub fn is_shutting_down(&self) -> bool {
-        self.lock().shutting_down
-    }
 }
 
 /// A job's place in the scheduler; dropping it ends the job.

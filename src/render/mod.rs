@@ -151,22 +151,6 @@ pub trait Waves: Sync {
     fn progress(&self, fraction: f64);
 }
 
-/// Waves with nobody watching: the whole render in the largest waves, on the calling
-/// thread's pool.
-pub struct Unwatched;
-
-impl Waves for Unwatched {
-    type Error = std::convert::Infallible;
-    fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
-        wave();
-        Ok(())
-    }
-    fn wave_seconds(&self) -> f64 {
-        f64::INFINITY
-    }
-    fn progress(&self, _: f64) {}
-}
-
 /// Pixels of the first wave when waves are sized in seconds, before a rate is known.
 const FIRST_WAVE_PIXELS: usize = 1 << 13;
 /// The smallest wave.
