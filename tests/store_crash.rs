@@ -68,6 +68,11 @@ enum Ack {
         id: String,
         blob: String,
     },
+    /// A delete is about to be sent: until `Deleted` is seen, the job may be gone
+    /// (the kill can land after the commit and before the acknowledgement).
+    Deleting {
+        id: String,
+    },
     Deleted {
         id: String,
     },
@@ -93,6 +98,7 @@ fn parse(line: &str) -> Option<Ack> {
             id: id.to_string(),
             blob: blob.to_string(),
         },
+        ["deleting", id] => Ack::Deleting { id: id.to_string() },
         ["deleted", id] => Ack::Deleted { id: id.to_string() },
         _ => return None,
     })
@@ -190,6 +196,7 @@ async fn child(dir: &Path) {
             .unwrap();
         println!("ACK done {} {} .", job.id, result);
         if i % 5 == 4 {
+            println!("ACK deleting {} .", job.id);
             store.delete_job(&job.id).await.unwrap();
             println!("ACK deleted {} .", job.id);
         }
@@ -286,7 +293,7 @@ async fn verify(dir: &Path, acks: &[Ack]) {
     let deleted: std::collections::HashSet<&str> = acks
         .iter()
         .filter_map(|a| match a {
-            Ack::Deleted { id } => Some(id.as_str()),
+            Ack::Deleted { id } | Ack::Deleting { id } => Some(id.as_str()),
             _ => None,
         })
         .collect();
@@ -321,7 +328,7 @@ async fn verify(dir: &Path, acks: &[Ack]) {
                     Err(StoreError::NotFound { .. })
                 ));
             }
-            Ack::Job { .. } | Ack::Done { .. } => {}
+            Ack::Job { .. } | Ack::Done { .. } | Ack::Deleting { .. } => {}
         }
     }
     // Nothing half-written: every scene has all its versions and their blobs, every
