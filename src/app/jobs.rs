@@ -182,7 +182,7 @@ impl App {
         &self,
         scene: &str,
         params: TraceParams,
-        rays_body: Vec<u8>,
+        rays_body: bytes::Bytes,
     ) -> Result<JobView, AppError> {
         let (geometry, _) = self.geometry(scene, params.version, params.time).await?;
         let ticket = self.engine().scheduler().admit(50, false)?;
@@ -361,7 +361,9 @@ impl App {
                 }
             }) as crate::jobs::control::ProgressFn
         };
+        let ran_from = Arc::new(std::sync::OnceLock::<Instant>::new());
         let started = {
+            let ran_from = Arc::clone(&ran_from);
             let (store, id, rt, events, view) = (
                 self.store().clone(),
                 id.clone(),
@@ -370,6 +372,7 @@ impl App {
                 Arc::clone(&view),
             );
             move || {
+                let _ = ran_from.set(Instant::now());
                 if let Ok(r) = rt.block_on(store.start_job(&id)) {
                     let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                     *v = JobView::from_record(&r);
@@ -387,6 +390,12 @@ impl App {
             Work::Trace(req) => self.run_trace(&record, &req, &control),
         };
         drop(control);
+        let ran = ran_from.get().map_or(0.0, |t| t.elapsed().as_secs_f64());
+        let observe = |state: JobState| {
+            if let Some(o) = &self.inner.observer {
+                o.job_ended(record.kind.as_str(), state.as_str(), ran);
+            }
+        };
         let end = match outcome {
             Ok((stats, results)) => {
                 let (result, frames) = if results.len() == 1 {
@@ -402,6 +411,7 @@ impl App {
             }
             Err(AppError::Job(JobError::Cancelled)) => {
                 tracing::info!("job cancelled");
+                observe(JobState::Cancelled);
                 self.forget_live(&id);
                 return;
             }
@@ -426,10 +436,13 @@ impl App {
             match finished {
                 Ok(r) => {
                     tracing::info!(state = r.state.as_str(), "job ended");
+                    observe(r.state);
                     let _ = events.send(JobView::from_record(&r));
                 }
                 Err(e) => tracing::error!("cannot record the job's end: {e}"),
             }
+        } else {
+            observe(JobState::Cancelled);
         }
         self.forget_live(&id);
     }
@@ -497,6 +510,9 @@ impl App {
         let (body, report) =
             self.engine()
                 .trace(&geometry, &rays, &req.params.request(), invalid, control)?;
+        if let Some(o) = &self.inner.observer {
+            o.traced(report.rays as u64, report.trace_seconds);
+        }
         let blob = rt.block_on(self.store().put_blob(body.as_ref().to_vec()))?;
         Ok((
             serde_json::to_value(report).expect("serialises"),

@@ -15,7 +15,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 pub use jobs::{JobEvents, JobView};
-pub use scenes::{scene_info, SceneView, UploadKind};
+pub use scenes::{scene_info, SceneView, TraceIntake, UploadKind};
 pub use spec::{FramesSpec, RenderSpec, TraceParams};
 
 use crate::jobs::{Engine, JobError};
@@ -63,17 +63,39 @@ pub enum AppError {
     Internal(String),
 }
 
+/// Hears about finished work, for monitoring: the service hands its metrics in here, so
+/// the domain layer counts nothing itself and knows no metrics library.
+pub trait Observer: Send + Sync {
+    /// A job of `kind` (`render`, `trace`) ended in `state` after running `seconds`
+    /// (from its first step to its end; 0 if it never ran).
+    fn job_ended(&self, kind: &str, state: &str, seconds: f64);
+    /// A trace job traced `rays` rays in `trace_seconds`.
+    fn traced(&self, rays: u64, trace_seconds: f64);
+}
+
 /// How the domain layer behaves.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub struct AppOptions {
     /// Bytes of evaluated geometry (positions per scene, version and time) kept in memory.
     pub geometry_bytes: usize,
+    /// Who hears about finished work.
+    pub observer: Option<Arc<dyn Observer>>,
+}
+
+impl std::fmt::Debug for AppOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AppOptions")
+            .field("geometry_bytes", &self.geometry_bytes)
+            .field("observer", &self.observer.is_some())
+            .finish()
+    }
 }
 
 impl Default for AppOptions {
     fn default() -> Self {
         AppOptions {
             geometry_bytes: 1 << 30,
+            observer: None,
         }
     }
 }
@@ -90,6 +112,7 @@ struct Inner {
     runtime: tokio::runtime::Handle,
     scenes: scenes::SceneCache,
     live: Mutex<HashMap<String, jobs::Live>>,
+    observer: Option<Arc<dyn Observer>>,
 }
 
 impl App {
@@ -103,6 +126,7 @@ impl App {
                 runtime: tokio::runtime::Handle::current(),
                 scenes: scenes::SceneCache::new(options.geometry_bytes),
                 live: Mutex::new(HashMap::new()),
+                observer: options.observer,
             }),
         }
     }

@@ -217,18 +217,17 @@ impl App {
     pub async fn upload(
         &self,
         kind: UploadKind,
-        bytes: Vec<u8>,
+        bytes: bytes::Bytes,
         name: Option<String>,
     ) -> Result<(SceneView, bool), AppError> {
         let id = BlobId::of(&bytes);
         if let Ok(existing) = self.store().get_scene(id.as_str()).await {
             return Ok((SceneView::from_record(existing), false));
         }
-        let bytes = Arc::new(bytes);
-        let b = Arc::clone(&bytes);
+        let b = bytes.clone();
         let scene = self.cpu(move || parse(kind, &b)).await??;
         let summary = scene_info(&scene).to_string();
-        let blob = self.store().put_blob(bytes.to_vec()).await?;
+        let blob = self.store().put_blob(bytes).await?;
         let (record, created) = self
             .store()
             .create_scene(NewScene {
@@ -300,28 +299,38 @@ impl App {
     }
 
     /// Stores new positions for every triangle of scene `id` as its next version.
-    pub async fn update_geometry(&self, id: &str, body: Vec<u8>) -> Result<i64, AppError> {
+    pub async fn update_geometry(&self, id: &str, body: bytes::Bytes) -> Result<i64, AppError> {
         let loaded = self.loaded(id).await?;
         let expected = loaded.scene.triangles.len();
-        let body = Arc::new(body);
-        let b = Arc::clone(&body);
-        let tris = self
-            .cpu(move || read_tri(&b))
-            .await?
-            .map_err(|e| AppError::BadUpload {
-                detail: e.to_string(),
-                byte_offset: None,
-            })?;
-        if tris.len() != expected {
-            return Err(AppError::Unprocessable {
-                field: "count",
-                detail: format!(
-                    "the body has {} triangles but scene {id} has {expected}: a geometry update gives new positions for every triangle, same ids",
-                    tris.len()
-                ),
-            });
+        // The count is in the header: a body for another scene is refused before any work.
+        if let Some(count) = tri_count(&body) {
+            if count != expected as u64 {
+                return Err(wrong_count(id, count, expected));
+            }
         }
-        let blob = self.store().put_blob(body.to_vec()).await?;
+        // Parsing (on the pool) and the durable write (on a blocking thread) run at once:
+        // a frame's update costs the longer of the two, not their sum. A body that turns
+        // out not to parse leaves an unnamed blob, which GC collects.
+        let b = body.clone();
+        let (tris, blob) = tokio::join!(self.cpu(move || read_tri(&b)), async {
+            // Only a body whose header is right is worth storing before it parses.
+            if tri_count(&body).is_some() {
+                Some(self.store().put_blob(body.clone()).await)
+            } else {
+                None
+            }
+        });
+        let tris = tris?.map_err(|e| AppError::BadUpload {
+            detail: e.to_string(),
+            byte_offset: None,
+        })?;
+        if tris.len() != expected {
+            return Err(wrong_count(id, tris.len() as u64, expected));
+        }
+        let blob = match blob {
+            Some(stored) => stored?,
+            None => self.store().put_blob(body).await?,
+        };
         let version = self.store().add_version(id, &blob).await?.version;
         self.inner.scenes.keep_geometry(
             GeometryKey::new(id, version as u32, None),
@@ -413,31 +422,133 @@ impl App {
             .admit(sched::SYNC_PRIORITY, true)?)
     }
 
-    /// Traces `rays` against scene `id` (a synchronous trace, admitted with `ticket`).
-    pub async fn trace(
+    /// Starts a synchronous trace of scene `id` (admitted with `ticket`) whose rays are
+    /// still to arrive; `rays` is the count the request's length announces, if it does.
+    /// Where the accelerator answers each ray on its own and the batch is large, the trace
+    /// starts on the rays that have arrived while the rest uploads (the structure is
+    /// prepared first, during the upload); otherwise it starts when all have arrived.
+    pub async fn begin_trace(
         &self,
         id: &str,
         params: &TraceParams,
-        mut rays: Vec<Ray>,
+        rays: Option<usize>,
         ticket: sched::Ticket,
-    ) -> Result<(HitBody, TraceReport), AppError> {
+    ) -> Result<TraceIntake, AppError> {
         let (geometry, _) = self.geometry(id, params.version, params.time).await?;
         let request = params.request();
         let engine = Arc::clone(self.engine());
-        let (tx, rx) = tokio::sync::oneshot::channel();
-        // The job waits for the pool on a thread of its own; its work runs on the pool.
+        let streamed = rays.filter(|&n| engine.streams(&geometry, &request, n));
+        let Some(count) = streamed else {
+            return Ok(TraceIntake::Whole {
+                geometry,
+                request,
+                engine,
+                ticket,
+            });
+        };
+        let (arrive, arrivals) = std::sync::mpsc::channel();
+        let (tx, done) = tokio::sync::oneshot::channel();
+        // The trace waits for the pool and for its rays on a thread of its own; its work
+        // runs on the pool.
         std::thread::Builder::new()
             .name("rayd-trace".into())
             .spawn(move || {
-                let result = (|| {
-                    let invalid = trace::validate(&mut rays, request.invalid)?;
-                    let control = engine.control(Default::default(), None, ticket);
-                    engine.trace(&geometry, &rays, &request, invalid, &control)
-                })();
+                let control = engine.control(Default::default(), None, ticket);
+                let result = engine.trace_stream(&geometry, &request, count, arrivals, &control);
                 let _ = tx.send(result);
             })
             .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
-        Ok(rx
+        Ok(TraceIntake::Streamed { arrive, done })
+    }
+}
+
+/// The triangle count a TRI1 body's header announces, if the header is whole and its
+/// length agrees with the body's.
+fn tri_count(body: &[u8]) -> Option<u64> {
+    let count = u64::from_le_bytes(body.get(8..16)?.try_into().ok()?);
+    (body.get(..4)? == b"TRI1" && (body.len() as u128) == 16 + 36 * count as u128).then_some(count)
+}
+
+fn wrong_count(id: &str, got: u64, expected: usize) -> AppError {
+    AppError::Unprocessable {
+        field: "count",
+        detail: format!(
+            "the body has {got} triangles but scene {id} has {expected}: a geometry update gives new positions for every triangle, same ids"
+        ),
+    }
+}
+
+/// A synchronous trace waiting for its rays (see [`App::begin_trace`]). Dropping it before
+/// [`TraceIntake::finish`] abandons the trace.
+pub enum TraceIntake {
+    /// The trace starts when the whole batch is in.
+    Whole {
+        /// The triangles.
+        geometry: Geometry,
+        /// The options.
+        request: trace::TraceRequest,
+        /// The engine.
+        engine: Arc<crate::jobs::Engine>,
+        /// The trace's place in the queue.
+        ticket: sched::Ticket,
+    },
+    /// The trace runs as the rays arrive.
+    Streamed {
+        /// Where the rays go.
+        arrive: std::sync::mpsc::Sender<trace::Arrival>,
+        /// The answer.
+        done: tokio::sync::oneshot::Receiver<Result<(HitBody, TraceReport), crate::jobs::JobError>>,
+    },
+}
+
+impl TraceIntake {
+    /// Rays per piece the trace takes as they arrive (`None`: it wants the whole batch).
+    pub fn segment_rays(&self) -> Option<usize> {
+        match self {
+            TraceIntake::Whole { .. } => None,
+            TraceIntake::Streamed { .. } => Some(trace::STREAM_SEGMENT_RAYS),
+        }
+    }
+
+    /// Hands over the next rays of the batch, in order.
+    pub fn send(&mut self, rays: Vec<Ray>) {
+        if let TraceIntake::Streamed { arrive, .. } = self {
+            // A trace that already stopped (bad rays, say) answers at `finish`.
+            let _ = arrive.send(trace::Arrival::Rays(rays));
+        }
+    }
+
+    /// Hands over the last rays of a complete, well-formed body and waits for the answer.
+    pub async fn finish(self, rays: Vec<Ray>) -> Result<(HitBody, TraceReport), AppError> {
+        let done = match self {
+            TraceIntake::Streamed { arrive, done } => {
+                let _ = arrive.send(trace::Arrival::Rays(rays));
+                let _ = arrive.send(trace::Arrival::End);
+                done
+            }
+            TraceIntake::Whole {
+                geometry,
+                request,
+                engine,
+                ticket,
+            } => {
+                let mut rays = rays;
+                let (tx, done) = tokio::sync::oneshot::channel();
+                std::thread::Builder::new()
+                    .name("rayd-trace".into())
+                    .spawn(move || {
+                        let result = (|| {
+                            let invalid = trace::validate(&mut rays, request.invalid)?;
+                            let control = engine.control(Default::default(), None, ticket);
+                            engine.trace(&geometry, &rays, &request, invalid, &control)
+                        })();
+                        let _ = tx.send(result);
+                    })
+                    .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
+                done
+            }
+        };
+        Ok(done
             .await
             .map_err(|_| AppError::Internal("the trace thread died".into()))??)
     }

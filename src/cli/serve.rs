@@ -49,7 +49,14 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         },
         tuning: crate::accel::dacrt::DacrtTuning::from_env(),
     })?);
-    let app = crate::app::App::new(store.clone(), Arc::clone(&engine), Default::default());
+    let app = crate::app::App::new(
+        store.clone(),
+        Arc::clone(&engine),
+        crate::app::AppOptions {
+            observer: Some(Arc::new(state.metrics.clone())),
+            ..Default::default()
+        },
+    );
     let router = service::router(state.clone(), service::routes::routes())
         .layer(axum::Extension(app.clone()));
     let listener =
@@ -108,7 +115,7 @@ async fn demo(app: &crate::app::App) {
         match app
             .upload(
                 crate::app::UploadKind::Glb,
-                bytes.to_vec(),
+                bytes::Bytes::from_static(bytes),
                 Some(name.into()),
             )
             .await

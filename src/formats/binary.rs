@@ -289,9 +289,16 @@ pub struct Ray1Sink {
     header: [u8; HEADER_BYTES],
     header_len: usize,
     count: usize,
+    /// The rays of the current segment (all of them, unsegmented).
     rays: Vec<Ray>,
-    /// Record bytes received.
+    /// Record bytes received into `rays`.
     filled: usize,
+    /// Rays per segment (`usize::MAX`: one segment).
+    segment: usize,
+    /// Rays in the segments completed before `rays`.
+    taken: usize,
+    /// Completed segments not yet taken.
+    ready: Vec<Vec<Ray>>,
 }
 
 impl Ray1Sink {
@@ -305,7 +312,28 @@ impl Ray1Sink {
             count: 0,
             rays: Vec::new(),
             filled: 0,
+            segment: usize::MAX,
+            taken: 0,
+            ready: Vec::new(),
         }
+    }
+
+    /// Hands the rays out in segments of `rays` rays as they complete
+    /// ([`Ray1Sink::take_ready`]), so a consumer can start on them before the body ends;
+    /// the last segment is what [`Ray1Sink::finish`] returns.
+    pub fn segmented(mut self, rays: usize) -> Ray1Sink {
+        self.segment = rays.max(1);
+        self
+    }
+
+    /// Segments completed since the last call, in order.
+    pub fn take_ready(&mut self) -> std::vec::Drain<'_, Vec<Ray>> {
+        self.ready.drain(..)
+    }
+
+    /// Rays of the current segment.
+    fn segment_rays(&self) -> usize {
+        self.segment.min(self.count - self.taken)
     }
 
     /// The header's count, once the header is in.
@@ -315,7 +343,7 @@ impl Ray1Sink {
 
     /// Whole rays received so far.
     pub fn rays_received(&self) -> usize {
-        self.filled / 32
+        self.taken + self.filled / 32
     }
 
     fn wrong_length(&self, len: u128) -> BinaryError {
@@ -340,18 +368,35 @@ impl Ray1Sink {
             }
             self.start()?;
         }
-        let end = self.filled + chunk.len();
-        if end > 32 * self.count {
-            return Err(self.wrong_length(HEADER_BYTES as u128 + end as u128));
+        let total = 32 * self.taken + self.filled + chunk.len();
+        if total > 32 * self.count {
+            return Err(self.wrong_length(HEADER_BYTES as u128 + total as u128));
         }
-        if end > 32 * self.rays.len() {
-            // Growing mode (no length hint): at least double, at most the count.
-            let want = end.div_ceil(32).max(2 * self.rays.len()).min(self.count);
-            self.rays.resize(want, Ray::default());
+        while !chunk.is_empty() {
+            let seg = self.segment_rays();
+            let take = chunk.len().min(32 * seg - self.filled);
+            let end = self.filled + take;
+            if end > 32 * self.rays.len() {
+                // Growing mode (no length hint): at least double, at most the segment.
+                let want = end.div_ceil(32).max(2 * self.rays.len()).min(seg);
+                self.rays.resize(want, Ray::default());
+            }
+            let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut self.rays);
+            bytes[self.filled..end].copy_from_slice(&chunk[..take]);
+            self.filled = end;
+            chunk = &chunk[take..];
+            if self.filled == 32 * seg && self.taken + seg < self.count {
+                // A segment is complete and more follow: hand it out, start the next.
+                let mut done = std::mem::take(&mut self.rays);
+                to_native(&mut done);
+                self.ready.push(done);
+                self.taken += seg;
+                self.filled = 0;
+                if self.hint.is_some() {
+                    self.rays = bytemuck::zeroed_vec(self.segment_rays());
+                }
+            }
         }
-        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut self.rays);
-        bytes[self.filled..end].copy_from_slice(chunk);
-        self.filled = end;
         Ok(())
     }
 
@@ -376,12 +421,12 @@ impl Ray1Sink {
             if len as u128 != HEADER_BYTES as u128 + 32 * self.count as u128 {
                 return Err(self.wrong_length(len as u128));
             }
-            self.rays = bytemuck::zeroed_vec(self.count);
+            self.rays = bytemuck::zeroed_vec(self.segment_rays());
         }
         Ok(())
     }
 
-    /// The rays, once the body is complete.
+    /// The rays, once the body is complete: all of them, or, segmented, the last segment.
     pub fn finish(mut self) -> Result<Vec<Ray>, BinaryError> {
         if self.header_len < HEADER_BYTES {
             return Err(BinaryError::ShortHeader {
@@ -389,16 +434,23 @@ impl Ray1Sink {
                 len: self.header_len,
             });
         }
-        if self.filled != 32 * self.count {
-            return Err(self.wrong_length(HEADER_BYTES as u128 + self.filled as u128));
+        if self.taken + self.filled / 32 != self.count || self.filled % 32 != 0 {
+            return Err(self.wrong_length(
+                HEADER_BYTES as u128 + 32 * self.taken as u128 + self.filled as u128,
+            ));
         }
-        self.rays.truncate(self.count);
-        if cfg!(target_endian = "big") {
-            for x in bytemuck::cast_slice_mut::<Ray, u32>(&mut self.rays) {
-                *x = u32::from_le(*x);
-            }
-        }
+        self.rays.truncate(self.count - self.taken);
+        to_native(&mut self.rays);
         Ok(self.rays)
+    }
+}
+
+/// RAY1 records are little-endian: on a big-endian target, swap each word in place.
+fn to_native(rays: &mut [Ray]) {
+    if cfg!(target_endian = "big") {
+        for x in bytemuck::cast_slice_mut::<Ray, u32>(rays) {
+            *x = u32::from_le(*x);
+        }
     }
 }
 
@@ -552,6 +604,46 @@ mod tests {
         assert_eq!(bytes.len(), 16 + 5 * 32);
         assert_eq!(&bytes[0..4], b"RAY1");
         assert_eq!(read_rays(&bytes).unwrap(), r);
+    }
+
+    #[test]
+    fn a_segmented_sink_hands_out_every_ray_once_in_order() {
+        let all: Vec<Ray> = (0..103)
+            .map(|i| Ray {
+                org: [i as f32, 0.5, -1.0],
+                tmin: 0.0,
+                dir: [0.0, 1.0, 0.0],
+                tmax: i as f32,
+            })
+            .collect();
+        let bytes = write_rays(&all);
+        for hint in [None, Some(bytes.len() as u64)] {
+            for (segment, chunk) in [(1, 7), (10, 1), (10, 33), (64, 100), (103, 5), (500, 64)] {
+                let mut sink = Ray1Sink::new(usize::MAX, hint).segmented(segment);
+                let mut got = Vec::new();
+                for c in bytes.chunks(chunk) {
+                    sink.push(c).unwrap();
+                    for seg in sink.take_ready() {
+                        assert_eq!(seg.len(), segment, "only whole segments before the end");
+                        got.extend(seg);
+                    }
+                    assert_eq!(sink.rays_received(), got.len() + sink.filled / 32);
+                }
+                let last = sink.finish().unwrap();
+                assert!(!last.is_empty() && last.len() <= segment);
+                got.extend(last);
+                assert_eq!(got, all, "segment {segment}, chunk {chunk}, hint {hint:?}");
+            }
+        }
+        // A short body is still refused, segmented or not.
+        let mut sink = Ray1Sink::new(usize::MAX, None).segmented(10);
+        sink.push(&bytes[..bytes.len() - 32]).unwrap();
+        assert!(matches!(
+            sink.finish(),
+            Err(BinaryError::WrongLength { .. })
+        ));
+        let mut sink = Ray1Sink::new(usize::MAX, None).segmented(10);
+        assert!(sink.push(&[&bytes[..], &[0u8; 32][..]].concat()).is_err());
     }
 
     #[test]

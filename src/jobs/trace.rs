@@ -154,25 +154,15 @@ impl Engine {
             ))
         })??;
         control.progress(1.0);
-        let report = TraceReport {
-            rays: rays.len(),
+        let report = self.report(
+            rays.len(),
             accel,
-            threads: self.threads(),
-            build_seconds: prepared_seconds,
+            prepared_seconds,
             trace_seconds,
-            mrays_per_s: if trace_seconds > 0.0 {
-                rays.len() as f64 / trace_seconds / 1e6
-            } else {
-                0.0
-            },
-            query: request.query,
-            hit: request.hit,
-            precision: request.precision,
-            build: request.build,
-            simd: crate::simd::selected().name(),
-            structure: source,
+            request,
+            source,
             invalid_rays,
-        };
+        );
         Ok((body, report))
     }
 }
@@ -183,42 +173,244 @@ fn trace_into_body(
     rays: &[Ray],
     request: &TraceRequest,
 ) -> HitBody {
-    let n = rays.len();
-    let header = hit1_header(request.hit, n);
-    match request.hit {
-        HitFormat::Occluded => {
-            let mut out = vec![0u8; HEADER_BYTES + n];
-            out[..HEADER_BYTES].copy_from_slice(&header);
-            accel.occluded(rays, &mut out[HEADER_BYTES..]);
-            for f in &mut out[HEADER_BYTES..] {
-                *f = u8::from(*f != 0);
+    let mut out = BodyWriter::new(request.hit, rays.len());
+    out.trace(accel, rays, request.query, 0);
+    out.finish()
+}
+
+/// A HIT1 body being filled, one range of rays at a time (the whole batch, or the segments
+/// of a streamed one).
+struct BodyWriter {
+    format: HitFormat,
+    n: usize,
+    body: HitBody,
+}
+
+impl BodyWriter {
+    /// A body for `n` rays, header written, every record still empty.
+    fn new(format: HitFormat, n: usize) -> BodyWriter {
+        let header = hit1_header(format, n);
+        let body = match format {
+            HitFormat::TPrimUv => {
+                let mut records: Vec<Hit> = bytemuck::zeroed_vec(n + 1);
+                bytemuck::cast_slice_mut::<Hit, u8>(&mut records[..1]).copy_from_slice(&header);
+                HitBody::Records(records)
             }
-            HitBody::Packed(out)
-        }
-        HitFormat::TPrimUv => {
-            let mut records: Vec<Hit> = bytemuck::zeroed_vec(n + 1);
-            accel.trace(rays, request.query, &mut records[1..]);
-            if cfg!(target_endian = "big") {
-                for x in bytemuck::cast_slice_mut::<Hit, u32>(&mut records[1..]) {
-                    *x = x.to_le();
+            _ => {
+                let mut out = vec![0u8; HEADER_BYTES + format.record_bytes() * n];
+                out[..HEADER_BYTES].copy_from_slice(&header);
+                HitBody::Packed(out)
+            }
+        };
+        BodyWriter { format, n, body }
+    }
+
+    /// Traces `rays`, the batch's rays from index `first` on, into their records.
+    fn trace(
+        &mut self,
+        accel: &dyn crate::accel::Intersector,
+        rays: &[Ray],
+        query: Query,
+        first: usize,
+    ) {
+        debug_assert!(first + rays.len() <= self.n);
+        let record = self.format.record_bytes();
+        match (&mut self.body, self.format) {
+            (HitBody::Records(records), _) => {
+                let out = &mut records[1 + first..1 + first + rays.len()];
+                accel.trace(rays, query, out);
+                if cfg!(target_endian = "big") {
+                    for x in bytemuck::cast_slice_mut::<Hit, u32>(out) {
+                        *x = x.to_le();
+                    }
                 }
             }
-            bytemuck::cast_slice_mut::<Hit, u8>(&mut records[..1]).copy_from_slice(&header);
-            HitBody::Records(records)
-        }
-        format => {
-            let mut hits: Vec<Hit> = bytemuck::zeroed_vec(n);
-            accel.trace(rays, request.query, &mut hits);
-            let record = format.record_bytes();
-            let mut out = Vec::with_capacity(HEADER_BYTES + record * n);
-            out.extend_from_slice(&header);
-            for h in &hits {
-                out.extend_from_slice(&h.t.to_le_bytes());
-                if format == HitFormat::TPrim {
-                    out.extend_from_slice(&h.prim.to_le_bytes());
+            (HitBody::Packed(bytes), HitFormat::Occluded) => {
+                let start = HEADER_BYTES + first;
+                let out = &mut bytes[start..start + rays.len()];
+                accel.occluded(rays, out);
+                for f in out {
+                    *f = u8::from(*f != 0);
                 }
             }
-            HitBody::Packed(out)
+            (HitBody::Packed(bytes), format) => {
+                let mut hits: Vec<Hit> = bytemuck::zeroed_vec(rays.len());
+                accel.trace(rays, query, &mut hits);
+                let start = HEADER_BYTES + record * first;
+                let out = &mut bytes[start..start + record * rays.len()];
+                for (h, o) in hits.iter().zip(out.chunks_exact_mut(record)) {
+                    o[..4].copy_from_slice(&h.t.to_le_bytes());
+                    if format == HitFormat::TPrim {
+                        o[4..8].copy_from_slice(&h.prim.to_le_bytes());
+                    }
+                }
+            }
+        }
+    }
+
+    fn finish(self) -> HitBody {
+        self.body
+    }
+}
+
+/// What the reader of a streamed batch hands the trace: the next rays in order, or the end
+/// of a body that arrived whole.
+pub enum Arrival {
+    /// The next rays of the batch.
+    Rays(Vec<Ray>),
+    /// Every ray has arrived and the body was well formed.
+    End,
+}
+
+/// How many rays a streamed batch is traced in at a time: large enough that the pool's
+/// threads each get thousands, small enough that the last segment's trace, which cannot
+/// overlap the upload, is short.
+pub const STREAM_SEGMENT_RAYS: usize = 1 << 16;
+
+impl Engine {
+    /// Whether a trace with `request` of `rays` rays over `geometry` can start before the
+    /// whole batch has arrived: when the accelerator it resolves to answers each ray on its
+    /// own (every core but DACRT's, which partitions the whole batch at once and likes it
+    /// large), and the batch is large enough to span several segments.
+    pub fn streams(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> bool {
+        let kind = self.resolve(
+            request.accel,
+            geometry,
+            request.build,
+            request.precision,
+            rays,
+            1,
+        );
+        rays > STREAM_SEGMENT_RAYS && !matches!(kind, AccelKind::Dacrt | AccelKind::DacrtSampled)
+    }
+
+    /// Traces a batch of `count` rays that arrives in pieces on `arrivals` (see
+    /// [`Engine::streams`]): the structure is prepared while the first rays upload, and each
+    /// piece is validated and traced as it comes, one scheduler step each. The answer is the
+    /// same, byte for byte, as [`Engine::trace`] of the whole batch after [`validate`].
+    /// With `invalid=error` a bad ray stops the tracing but not the counting, so the error
+    /// names the first bad ray and how many there were. If the sender goes away before
+    /// [`Arrival::End`] (a broken body) the trace stops with [`JobError::Cancelled`].
+    pub fn trace_stream(
+        &self,
+        geometry: &Geometry,
+        request: &TraceRequest,
+        count: usize,
+        arrivals: std::sync::mpsc::Receiver<Arrival>,
+        control: &Control,
+    ) -> Result<(HitBody, TraceReport), JobError> {
+        let limit = self.limits().max_rays;
+        if count > limit {
+            return Err(JobError::Limit {
+                what: "rays",
+                value: count as u64,
+                limit: limit as u64,
+            });
+        }
+        let kind = self.resolve(
+            request.accel,
+            geometry,
+            request.build,
+            request.precision,
+            count,
+            1,
+        );
+        let prepared = control.step(|| {
+            self.structure(geometry, kind, request.build, request.precision, count, 1)
+        })??;
+        let accel = prepared.accel.as_ref();
+        let mut out = BodyWriter::new(request.hit, count);
+        let replace = request.invalid == InvalidPolicy::Miss;
+        let mut bad: Option<crate::geometry::InvalidRays> = None;
+        let mut invalid_rays = 0;
+        let mut received = 0usize;
+        let mut trace_seconds = 0.0;
+        loop {
+            let mut rays = match arrivals.recv() {
+                Ok(Arrival::Rays(rays)) => rays,
+                Ok(Arrival::End) => break,
+                Err(_) => return Err(JobError::Cancelled),
+            };
+            if received + rays.len() > count {
+                return Err(JobError::Invalid {
+                    field: "rays",
+                    detail: format!("more than the {count} rays announced"),
+                });
+            }
+            if let Some(b) = Ray::validate_batch(&mut rays, replace) {
+                invalid_rays += b.count;
+                match &mut bad {
+                    Some(first) => first.count += b.count,
+                    None => {
+                        bad = Some(crate::geometry::InvalidRays {
+                            first_index: received + b.first_index,
+                            ..b
+                        })
+                    }
+                }
+            }
+            if replace || bad.is_none() {
+                let first = received;
+                trace_seconds += control.step(|| {
+                    let t0 = Instant::now();
+                    out.trace(accel, &rays, request.query, first);
+                    seconds_since(t0)
+                })?;
+                control.progress((first + rays.len()) as f64 / count.max(1) as f64);
+            }
+            received += rays.len();
+        }
+        if let (Some(bad), false) = (bad, replace) {
+            return Err(JobError::InvalidRays(bad));
+        }
+        if received != count {
+            return Err(JobError::Invalid {
+                field: "rays",
+                detail: format!("{received} rays arrived of the {count} announced"),
+            });
+        }
+        control.progress(1.0);
+        let report = self.report(
+            count,
+            accel.name(),
+            prepared.build_seconds,
+            trace_seconds,
+            request,
+            prepared.source,
+            invalid_rays,
+        );
+        Ok((out.finish(), report))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn report(
+        &self,
+        rays: usize,
+        accel: &'static str,
+        build_seconds: f64,
+        trace_seconds: f64,
+        request: &TraceRequest,
+        structure: Source,
+        invalid_rays: usize,
+    ) -> TraceReport {
+        TraceReport {
+            rays,
+            accel,
+            threads: self.threads(),
+            build_seconds,
+            trace_seconds,
+            mrays_per_s: if trace_seconds > 0.0 {
+                rays as f64 / trace_seconds / 1e6
+            } else {
+                0.0
+            },
+            query: request.query,
+            hit: request.hit,
+            precision: request.precision,
+            build: request.build,
+            simd: crate::simd::selected().name(),
+            structure,
+            invalid_rays,
         }
     }
 }
@@ -315,6 +507,122 @@ mod tests {
         assert_eq!(first.structure, Source::Built);
         assert_eq!(second.structure, Source::Cached);
         assert_eq!(second.build_seconds, 0.0);
+    }
+
+    /// `n` rays over the test scene, some hitting, some missing, in a fan.
+    fn many_rays(n: usize) -> Vec<Ray> {
+        (0..n)
+            .map(|i| {
+                let a = i as f32 / n as f32;
+                Ray {
+                    org: [-1.5 + 3.0 * a, -0.2 + 0.3 * (i % 7) as f32 / 7.0, 0.0],
+                    tmin: 0.0,
+                    dir: [0.01 * (i % 5) as f32, 0.0, 1.0],
+                    tmax: if i % 11 == 0 { 2.5 } else { f32::INFINITY },
+                }
+            })
+            .collect()
+    }
+
+    fn streamed(
+        engine: &Engine,
+        g: &Geometry,
+        req: &TraceRequest,
+        rays: &[Ray],
+        pieces: usize,
+        end: bool,
+    ) -> Result<(HitBody, TraceReport), JobError> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        for piece in rays.chunks(pieces) {
+            tx.send(Arrival::Rays(piece.to_vec())).unwrap();
+        }
+        if end {
+            tx.send(Arrival::End).unwrap();
+        }
+        drop(tx);
+        engine.trace_stream(g, req, rays.len(), rx, &engine.detached())
+    }
+
+    #[test]
+    fn a_streamed_trace_answers_what_the_whole_batch_does() {
+        let engine = Engine::new(super::super::EngineOptions {
+            threads: 2,
+            ..Default::default()
+        })
+        .unwrap();
+        let g = scene();
+        let rays = many_rays(1000);
+        for accel in [AccelKind::Brute, AccelKind::Mbvh8, AccelKind::Bvh2] {
+            for hit in [
+                HitFormat::TPrimUv,
+                HitFormat::TPrim,
+                HitFormat::T,
+                HitFormat::Occluded,
+            ] {
+                for query in [Query::Closest, Query::Any] {
+                    let req = TraceRequest {
+                        accel,
+                        hit,
+                        query,
+                        ..Default::default()
+                    };
+                    let (whole, _) = engine
+                        .trace(&g, &rays, &req, 0, &engine.detached())
+                        .unwrap();
+                    for pieces in [1, 37, 256, 1000] {
+                        let (body, report) =
+                            streamed(&engine, &g, &req, &rays, pieces, true).unwrap();
+                        assert_eq!(body.as_ref(), whole.as_ref(), "{accel:?} {hit:?} {pieces}");
+                        assert_eq!(report.rays, 1000);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_streamed_trace_refuses_bad_rays_and_broken_bodies() {
+        let engine = Engine::new(Default::default()).unwrap();
+        let g = scene();
+        let mut rays = many_rays(300);
+        rays[130].dir = [0.0; 3];
+        rays[20].org[0] = f32::INFINITY;
+        rays[299].tmin = -1.0;
+        let req = TraceRequest {
+            accel: AccelKind::Mbvh8,
+            ..Default::default()
+        };
+        match streamed(&engine, &g, &req, &rays, 64, true) {
+            Err(JobError::InvalidRays(bad)) => assert_eq!((bad.first_index, bad.count), (20, 3)),
+            other => panic!("{:?}", other.map(|(_, r)| r)),
+        }
+        // Under invalid=miss the bad rays are misses, as in a whole-batch trace.
+        let miss = TraceRequest {
+            invalid: InvalidPolicy::Miss,
+            ..req
+        };
+        let mut fixed = rays.clone();
+        let count = validate(&mut fixed, InvalidPolicy::Miss).unwrap();
+        let (whole, _) = engine
+            .trace(&g, &fixed, &miss, count, &engine.detached())
+            .unwrap();
+        let (body, report) = streamed(&engine, &g, &miss, &rays, 64, true).unwrap();
+        assert_eq!(body.as_ref(), whole.as_ref());
+        assert_eq!(report.invalid_rays, 3);
+        // A body that broke off (the sender went away before the end) traces nothing more.
+        let good = many_rays(300);
+        assert!(matches!(
+            streamed(&engine, &g, &req, &good, 64, false),
+            Err(JobError::Cancelled)
+        ));
+        // Fewer rays than announced.
+        let (tx, rx) = std::sync::mpsc::channel();
+        tx.send(Arrival::Rays(good[..100].to_vec())).unwrap();
+        tx.send(Arrival::End).unwrap();
+        assert!(matches!(
+            engine.trace_stream(&g, &req, 300, rx, &engine.detached()),
+            Err(JobError::Invalid { field: "rays", .. })
+        ));
     }
 
     #[test]

@@ -63,6 +63,20 @@ const MRAYS_BUCKETS: &[f64] = &[
     0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0,
 ];
 
+/// Finished jobs and the rays of trace jobs, as the domain layer reports them.
+impl crate::app::Observer for Metrics {
+    fn job_ended(&self, kind: &str, _state: &str, seconds: f64) {
+        // A job that never ran (cancelled in the queue) has no duration to record.
+        if seconds > 0.0 {
+            self.observe_job(kind, seconds);
+        }
+    }
+
+    fn traced(&self, rays: u64, trace_seconds: f64) {
+        self.observe_trace(rays, trace_seconds);
+    }
+}
+
 /// A metric definition could not be registered (a programming error: names clash).
 #[derive(Debug, thiserror::Error)]
 #[error("metrics registry: {0}")]

@@ -191,7 +191,7 @@ async fn upload(
     let ct = media_type(&headers, &UploadKind::MEDIA_TYPES)?;
     let kind = UploadKind::from_media_type(ct).expect("accepted");
     let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
-    let (view, created) = app.upload(kind, body.bytes().to_vec(), None).await?;
+    let (view, created) = app.upload(kind, body.bytes().clone(), None).await?;
     drop(body);
     let status = if created {
         StatusCode::CREATED
@@ -255,7 +255,7 @@ async fn update_geometry(
     media_type(&headers, &[TRI])?;
     app.scene(&id).await?;
     let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
-    let version = app.update_geometry(&id, body.bytes().to_vec()).await?;
+    let version = app.update_geometry(&id, body.bytes().clone()).await?;
     Ok(Json(json!({"id": id, "version": version})).into_response())
 }
 
@@ -282,7 +282,7 @@ async fn trace(
     app.scene(&id).await?;
     if prefers_async(&headers) {
         let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
-        let view = app.submit_trace(&id, params, body.bytes().to_vec()).await?;
+        let view = app.submit_trace(&id, params, body.bytes().clone()).await?;
         let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
         resp.headers_mut()
             .insert(header::LOCATION, location(format!("/v1/jobs/{}", view.id)));
@@ -295,13 +295,25 @@ async fn trace(
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
     let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
-    // The rays land in their final memory as the body arrives.
+    let announced = declared
+        .and_then(|len| len.checked_sub(16))
+        .filter(|records| records % 32 == 0)
+        .map(|records| (records / 32) as usize);
+    let mut intake = app.begin_trace(&id, &params, announced, ticket).await?;
+    // The rays land in their final memory as the body arrives, and go to the trace in
+    // pieces if it can start before the body ends.
     let mut sink = Ray1Sink::new(state.config.max_rays as usize, declared);
+    if let Some(n) = intake.segment_rays() {
+        sink = sink.segmented(n);
+    }
     while let Some(chunk) = reader.next_chunk().await? {
         sink.push(&chunk).map_err(binary_error)?;
+        for rays in sink.take_ready() {
+            intake.send(rays);
+        }
     }
     let rays = sink.finish().map_err(binary_error)?;
-    let (hits, report) = app.trace(&id, &params, rays, ticket).await?;
+    let (hits, report) = intake.finish(rays).await?;
     drop(reader);
     state
         .metrics

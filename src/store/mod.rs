@@ -194,13 +194,13 @@ impl Store {
     /// Stores bytes as a blob and returns its id. Storing the same bytes twice keeps one
     /// file. The blob is durable when this returns; name it in a record within
     /// `gc_grace`, or GC may collect it.
-    pub async fn put_blob(&self, bytes: impl Into<Vec<u8>>) -> Result<BlobId> {
-        let bytes = bytes.into();
+    pub async fn put_blob(&self, bytes: impl AsRef<[u8]> + Send + 'static) -> Result<BlobId> {
         let _gate = self.inner.gc_gate.read().await;
         let blobs = Arc::clone(&self.inner.blobs);
         blocking(&self.inner.dir, move || {
-            let id = BlobId::of(&bytes);
-            blobs.put_bytes(&id, &bytes)?;
+            let bytes = bytes.as_ref();
+            let id = BlobId::of(bytes);
+            blobs.put_bytes(&id, bytes)?;
             Ok(id)
         })
         .await
