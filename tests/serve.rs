@@ -131,6 +131,54 @@ fn the_service_end_to_end() {
         assert!(r.header("server-timing").unwrap().contains("trace;dur="));
     }
 
+    // A batch of several segments is traced as it arrives: the same bytes as `rayd trace`,
+    // and a bad ray deep in it is still named, with the count of bad ones.
+    let big = rays_at([min[0], min[1], min[2]], [max[0], max[1], max[2]], 200_000);
+    let big_file = dir.path().join("big.ray");
+    std::fs::write(&big_file, write_rays(&big)).unwrap();
+    let big_body = write_rays(&big);
+    for (query, hit, accel) in [
+        ("closest", "t_prim_uv", "mbvh8"),
+        ("any", "occluded", "bvh2"),
+        ("closest", "t", "dacrt"),
+    ] {
+        let out = dir.path().join(format!("big-{query}-{hit}.hit"));
+        let cli = Command::new(BIN)
+            .args(["trace"])
+            .arg(&fox)
+            .arg("--rays")
+            .arg(&big_file)
+            .arg("--out")
+            .arg(&out)
+            .args(["--query", query, "--hit", hit, "--accel", accel])
+            .output()
+            .unwrap();
+        assert!(cli.status.success());
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/trace?query={query}&hit={hit}&accel={accel}"),
+            &[("Content-Type", "application/octet-stream")],
+            &big_body,
+        );
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        assert!(
+            r.body == std::fs::read(&out).unwrap(),
+            "big {query} {hit} {accel}"
+        );
+    }
+    let mut bad_big = big.clone();
+    bad_big[150_001].org[2] = f32::NAN;
+    bad_big[199_999].dir = [0.0; 3];
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/trace?accel=mbvh8"),
+        &[("Content-Type", "application/octet-stream")],
+        &write_rays(&bad_big),
+    );
+    assert_eq!(r.status, 422, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.json()["ray_index"], 150_001);
+    assert_eq!(r.json()["count"], 2);
+
     // Bad inputs, each with its status and the place.
     let trace_path = format!("/v1/scenes/{id}/trace");
     let octet = [("Content-Type", "application/octet-stream")];
