@@ -414,6 +414,13 @@ fn the_service_end_to_end() {
     let s = Server::start(&data, &[]);
     let j = wait_job(&s, &crashed, 120);
     assert_eq!(j["state"], "succeeded", "{j}");
+    // The recovered render's run time reached the job-duration histogram.
+    let metrics = String::from_utf8(s.req("GET", "/metrics", &[], &[]).body).unwrap();
+    let renders = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("rayd_job_duration_seconds_count{kind=\"render\"} "))
+        .unwrap_or_else(|| panic!("no render durations in /metrics:\n{metrics}"));
+    assert!(renders.parse::<u64>().unwrap() >= 1, "{renders}");
     // A second server on the same directory refuses to start.
     let second = Command::new(BIN)
         .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
