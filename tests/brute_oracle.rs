@@ -320,7 +320,7 @@ fn check_ray(
         // its t, u, v there are noise (see the module docs). Counted, not checked.
         return Ok(strict.map(|(i, _)| i) != Some(h.prim));
     }
-    if tris.get(p).map_or(true, |t| t.is_degenerate()) {
+    if tris.get(p).is_none_or(|t| t.is_degenerate()) {
         return Err(format!("hit on degenerate or unknown triangle {p}"));
     }
     let Some(jp) = judges[p].as_ref() else {

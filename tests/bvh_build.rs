@@ -473,7 +473,9 @@ fn bvh2_skip_pointers_walk_every_node_once() {
         skip_walk_visits(&b, |i| i % 3 != 1);
         skip_walk_visits(&b, |i| i % 7 == 0);
         let mut r = Rng(q as u64);
-        let flips: Vec<bool> = (0..b.nodes().len()).map(|_| r.next() % 4 != 0).collect();
+        let flips: Vec<bool> = (0..b.nodes().len())
+            .map(|_| !r.next().is_multiple_of(4))
+            .collect();
         skip_walk_visits(&b, |i| flips[i]);
     }
 }

@@ -142,7 +142,7 @@ fn spawn_housekeeping(state: AppState, app: crate::app::App) {
             let cache = app.engine().cache().stats();
             state.metrics.set_cache_bytes(cache.bytes as u64);
             n += 1;
-            if n % 60 == 0 {
+            if n.is_multiple_of(60) {
                 let store = app.store();
                 if let Err(e) = store.expire(crate::store::now_millis()).await {
                     tracing::warn!("expiring finished jobs failed: {e}");

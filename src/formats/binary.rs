@@ -434,7 +434,7 @@ impl Ray1Sink {
                 len: self.header_len,
             });
         }
-        if self.taken + self.filled / 32 != self.count || self.filled % 32 != 0 {
+        if self.taken + self.filled / 32 != self.count || !self.filled.is_multiple_of(32) {
             return Err(self.wrong_length(
                 HEADER_BYTES as u128 + 32 * self.taken as u128 + self.filled as u128,
             ));

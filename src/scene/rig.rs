@@ -721,7 +721,7 @@ impl Placement<'_> {
         };
         if rig.normals {
             match &prim.normals {
-                None => normals.extend(std::iter::repeat(Vec3::ZERO).take(n)),
+                None => normals.extend(std::iter::repeat_n(Vec3::ZERO, n)),
                 Some(base) => {
                     let morphs = self.morphs(&prim.normal_targets);
                     for v in 0..n {
@@ -736,7 +736,7 @@ impl Placement<'_> {
         }
         if rig.tangents {
             match &prim.tangents {
-                None => tangents.extend(std::iter::repeat(Vec4::ZERO).take(n)),
+                None => tangents.extend(std::iter::repeat_n(Vec4::ZERO, n)),
                 Some(base) => {
                     let morphs = self.morphs(&prim.tangent_targets);
                     for v in 0..n {

@@ -296,7 +296,7 @@ pub(crate) fn encode_page_token(kind: ListKind, created_at: Millis, id: &str) ->
 /// Decodes a token made by [`encode_page_token`] for the same list.
 pub(crate) fn decode_page_token(kind: ListKind, token: &str) -> Result<(Millis, String)> {
     let bad = || StoreError::BadPageToken;
-    if token.len() % 2 != 0 || token.len() > 512 {
+    if !token.len().is_multiple_of(2) || token.len() > 512 {
         return Err(bad());
     }
     let bytes = (0..token.len())

@@ -290,7 +290,7 @@ fn exact_sweep<const F32: bool>(
             let s = (area_of::<F32>(&acc) * cost.blocks(k as u32)
                 + r_area[k] * cost.blocks((n - k) as u32))
                 * inv_area;
-            if best.map_or(true, |b| s < b.0) {
+            if best.is_none_or(|b| s < b.0) {
                 best = Some((s, a, k));
             }
         }
@@ -383,7 +383,7 @@ fn sweep_with<const F32: bool>(
         }
         let s =
             (area_of::<F32>(&acc) * cost.blocks(n) + r_area[i] * cost.blocks(r_n[i])) * inv_area;
-        if best.map_or(true, |b| s < b.s) {
+        if best.is_none_or(|b| s < b.s) {
             best = Some(SweepBest {
                 bin: i,
                 s,
@@ -546,7 +546,7 @@ impl Splitter for SahSplitter<'_> {
                     inv_area,
                     cost,
                 ) {
-                    if best.map_or(true, |(_, o)| s.s < o.s) {
+                    if best.is_none_or(|(_, o)| s.s < o.s) {
                         best = Some((a, s));
                     }
                 }
@@ -569,7 +569,7 @@ impl Splitter for SahSplitter<'_> {
         let room = r.cap - r.begin;
         if self.spatial && room > r.n() && overlap > self.min_overlap {
             if let Some((p, s)) = sbvh::spatial_plan(self.tris, refs, r, cost, inv_area, room) {
-                if out.map_or(true, |(_, so)| s < so) {
+                if out.is_none_or(|(_, so)| s < so) {
                     out = Some((p, s));
                 }
             }

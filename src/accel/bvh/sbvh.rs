@@ -215,7 +215,7 @@ pub(crate) fn spatial_plan(
             inv_area,
             cost,
         ) {
-            if s.nl + s.nr <= room && best.map_or(true, |(_, o)| s.s < o.s) {
+            if s.nl + s.nr <= room && best.is_none_or(|(_, o)| s.s < o.s) {
                 best = Some((a, s));
             }
         }

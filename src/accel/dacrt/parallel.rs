@@ -581,7 +581,7 @@ mod tests {
             for pattern in 0..4 {
                 let mut v: Vec<u32> = (0..n as u32).collect();
                 let sel = |x: u32| match pattern {
-                    0 => x % 3 == 0,
+                    0 => x.is_multiple_of(3),
                     1 => x < n as u32 / 2,
                     2 => x >= n as u32 / 3,
                     _ => (x / 100) % 2 == 1,

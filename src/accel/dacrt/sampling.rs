@@ -267,7 +267,7 @@ pub fn sampled_cost(
         }
         let cost = alpha(s.hits_left, &c.left) * c.n_left as f32
             + alpha(s.hits_right, &c.right) * c.n_right as f32;
-        if best.as_ref().map_or(true, |&(_, b, _)| cost < b) {
+        if best.as_ref().is_none_or(|&(_, b, _)| cost < b) {
             best = Some((j, cost, s));
         }
     }

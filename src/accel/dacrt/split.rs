@@ -467,7 +467,7 @@ pub fn sah(cands: &[Candidate], parent: &Aabb) -> Option<(usize, f32)> {
             continue;
         }
         let cost = c.left.area() * c.n_left as f32 + c.right.area() * c.n_right as f32;
-        if best.map_or(true, |(_, b)| cost < b) {
+        if best.is_none_or(|(_, b)| cost < b) {
             best = Some((j, cost));
         }
     }

@@ -133,7 +133,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                         .map(|mt| mt.lanes())
                         .sum();
                     assert!((1..=16).contains(&k), "leaf of {k} triangles");
-                    if pos % 8 + k > 8 && pos % 8 != 0 {
+                    if pos % 8 + k > 8 && !pos.is_multiple_of(8) {
                         pos = pos.next_multiple_of(8);
                     }
                     *c = leaf_id(pos, k);

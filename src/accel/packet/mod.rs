@@ -20,7 +20,7 @@ use traverse::PACKET;
 
 /// Rays per rayon task (a multiple of the packet size).
 const CHUNK: usize = 256;
-const _: () = assert!(CHUNK % PACKET == 0);
+const _: () = assert!(CHUNK.is_multiple_of(PACKET));
 
 #[derive(Clone)]
 enum Trees {

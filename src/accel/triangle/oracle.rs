@@ -85,7 +85,7 @@ pub fn oracle_closest_f64(ray: &Ray, tris: &[Triangle]) -> Option<(u32, OracleHi
     let mut best: Option<(u32, OracleHit)> = None;
     for (i, tri) in tris.iter().enumerate() {
         if let Some(h) = oracle_f64(ray, tri) {
-            if best.map_or(true, |(_, b)| h.t < b.t) {
+            if best.is_none_or(|(_, b)| h.t < b.t) {
                 best = Some((i as u32, h));
             }
         }

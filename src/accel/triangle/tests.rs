@@ -100,10 +100,18 @@ fn ray_at(rng: &mut Rng, tri: &Triangle, reach: f32) -> Ray {
         }
     };
     let target = lerp3(tri, u, v);
-    let (org, dir) = if rng.next() % 4 == 0 {
+    let (org, dir) = if rng.next().is_multiple_of(4) {
         let axis = (rng.next() % 3) as usize;
-        let sign = if rng.next() % 2 == 0 { 1.0 } else { -1.0 };
-        let zero = if rng.next() % 2 == 0 { 0.0 } else { -0.0 };
+        let sign = if rng.next().is_multiple_of(2) {
+            1.0
+        } else {
+            -1.0
+        };
+        let zero = if rng.next().is_multiple_of(2) {
+            0.0
+        } else {
+            -0.0
+        };
         let mut dir = [zero; 3];
         dir[axis] = sign;
         let mut org = target;
@@ -116,7 +124,11 @@ fn ray_at(rng: &mut Rng, tri: &Triangle, reach: f32) -> Ray {
     };
     Ray {
         org,
-        tmin: if rng.next() % 3 == 0 { rng.unit() } else { 0.0 },
+        tmin: if rng.next().is_multiple_of(3) {
+            rng.unit()
+        } else {
+            0.0
+        },
         dir,
         tmax: match rng.next() % 3 {
             0 => f32::INFINITY,

@@ -684,13 +684,13 @@ fn shading_data(rig: &Rig, placed: &[Arc<mesh::PrimShading>], pose: &mut Pose) -
         }
         let material = s.material.map_or(Shading::DEFAULT_MATERIAL, |m| m as u32);
         out.materials
-            .extend(std::iter::repeat(material).take(prim.corners.len() / 3));
+            .extend(std::iter::repeat_n(material, prim.corners.len() / 3));
         let uv = |dst: &mut Vec<Vec2>, src: &Option<Arc<[f64]>>| match src {
             Some(v) => dst.extend(
                 v.chunks_exact(2)
                     .map(|c| Vec2::new(c[0] as f32, c[1] as f32)),
             ),
-            None => dst.extend(std::iter::repeat(Vec2::ZERO).take(n)),
+            None => dst.extend(std::iter::repeat_n(Vec2::ZERO, n)),
         };
         if any_uv0 {
             uv(&mut out.uv0, &s.uv0);
@@ -704,7 +704,7 @@ fn shading_data(rig: &Rig, placed: &[Arc<mesh::PrimShading>], pose: &mut Pose) -
                     let a = if *w == 4 { c[3] as f32 } else { 1.0 };
                     Vec4::new(c[0] as f32, c[1] as f32, c[2] as f32, a)
                 })),
-                None => out.colors.extend(std::iter::repeat(Vec4::ONE).take(n)),
+                None => out.colors.extend(std::iter::repeat_n(Vec4::ONE, n)),
             }
         }
         // Vertices are counted against u32 before the pose is computed.
