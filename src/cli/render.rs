@@ -10,7 +10,7 @@ use crate::formats::FormatError;
 use crate::jobs::render::{frame_times, FrameInput};
 use crate::jobs::{Geometry, GeometryKey, RenderRequest};
 use crate::render::image::ImageFormat;
-use crate::render::Integrator;
+use crate::render::{Aov, AovSet, Integrator};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct RenderArgs {
@@ -40,6 +40,12 @@ pub(super) struct RenderArgs {
     /// Seed of the sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Radiance R,G,B of the constant environment (`path`).
+    #[arg(long, value_parser = super::parse_vec3, default_value = "1,1,1")]
+    sky: [f64; 3],
+    /// AOV channels to add to an EXR, comma-separated: depth, normal, albedo, prim.
+    #[arg(long, value_delimiter = ',')]
+    aov: Vec<Aov>,
     /// Animation times START:END:STEP (seconds): one image per time.
     #[arg(long, conflicts_with = "time")]
     frames: Option<String>,
@@ -103,6 +109,8 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         accel: a.core.accel,
         build: a.core.build,
         precision: a.core.precision,
+        sky: a.sky.map(|x| x as f32),
+        aovs: AovSet::of(&a.aov),
     };
     request.check(engine.limits(), times.len())?;
     let path = a.scene.display().to_string();

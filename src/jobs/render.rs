@@ -9,7 +9,7 @@ use super::{seconds_since, Control, Engine, Geometry, JobError, Limits};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
-use crate::render::{Integrator, RenderOptions, Waves};
+use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
 /// What to render (the options of `rayd render` and of the render route's body, less the
@@ -38,6 +38,10 @@ pub struct RenderRequest {
     pub build: BuildQuality,
     /// Ray/triangle test.
     pub precision: Precision,
+    /// Radiance of the constant environment of `path` (linear RGB, each finite and ≥ 0).
+    pub sky: [f32; 3],
+    /// AOV channels to add (EXR only).
+    pub aovs: AovSet,
 }
 
 impl Default for RenderRequest {
@@ -54,6 +58,8 @@ impl Default for RenderRequest {
             accel: AccelKind::Auto,
             build: BuildQuality::Sah,
             precision: Precision::Watertight,
+            sky: [1.0; 3],
+            aovs: AovSet::default(),
         }
     }
 }
@@ -91,6 +97,21 @@ impl RenderRequest {
             return Err(JobError::Invalid {
                 field: "spp",
                 detail: "must be at least 1".into(),
+            });
+        }
+        if let Some(x) = self.sky.iter().find(|x| !(x.is_finite() && **x >= 0.0)) {
+            return Err(JobError::Invalid {
+                field: "sky",
+                detail: format!("{x} is not a finite radiance of at least 0"),
+            });
+        }
+        if !self.aovs.is_empty() && self.format != ImageFormat::Exr {
+            return Err(JobError::Invalid {
+                field: "aov",
+                detail: format!(
+                    "AOVs are EXR channels; the {} output has none (ask for exr)",
+                    self.format
+                ),
             });
         }
         let checks = [
@@ -245,6 +266,8 @@ impl Engine {
                 integrator: request.integrator,
                 bounces: request.bounces,
                 seed: request.seed,
+                sky: request.sky,
+                aovs: request.aovs,
             };
             let waves = FrameWaves {
                 control,

@@ -55,6 +55,72 @@ impl Integrator {
 
 crate::spelled!(Integrator, Integrator::ALL);
 
+/// An arbitrary output variable: extra per-pixel data of the primary hit, written as EXR
+/// channels (`proto/rendering.md`, "Output").
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Aov {
+    /// `depth.Z`: distance from the camera ray's origin to the hit (+inf where none).
+    Depth,
+    /// `normal.X/Y/Z`: the world-space shading normal, turned towards the camera (0 where
+    /// nothing is hit).
+    Normal,
+    /// `albedo.R/G/B`: the surface's base colour (0 where nothing is hit).
+    Albedo,
+    /// `prim.id`: the hit triangle's id (`u32::MAX` where none).
+    Prim,
+}
+
+impl Aov {
+    /// Every AOV.
+    pub const ALL: [Aov; 4] = [Aov::Depth, Aov::Normal, Aov::Albedo, Aov::Prim];
+}
+
+crate::spelled!(Aov, Aov::ALL);
+
+/// Which AOVs a render keeps (a set; order and repetition of a request do not matter).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub struct AovSet {
+    /// `depth`.
+    pub depth: bool,
+    /// `normal`.
+    pub normal: bool,
+    /// `albedo`.
+    pub albedo: bool,
+    /// `prim`.
+    pub prim: bool,
+}
+
+impl AovSet {
+    /// The set of `list`.
+    pub fn of(list: &[Aov]) -> AovSet {
+        let has = |a| list.contains(&a);
+        AovSet {
+            depth: has(Aov::Depth),
+            normal: has(Aov::Normal),
+            albedo: has(Aov::Albedo),
+            prim: has(Aov::Prim),
+        }
+    }
+
+    /// Whether no AOV is asked for.
+    pub fn is_empty(&self) -> bool {
+        *self == AovSet::default()
+    }
+
+    /// The members, in [`Aov::ALL`]'s order.
+    pub fn list(&self) -> Vec<Aov> {
+        let on = [self.depth, self.normal, self.albedo, self.prim];
+        Aov::ALL
+            .into_iter()
+            .zip(on)
+            .filter_map(|(a, on)| on.then_some(a))
+            .collect()
+    }
+}
+
 /// How to render.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderOptions {
@@ -70,6 +136,10 @@ pub struct RenderOptions {
     pub bounces: u32,
     /// Seed of every random choice; the same seed gives the same image.
     pub seed: u64,
+    /// Radiance of the constant environment `path` sees (linear RGB).
+    pub sky: [f32; 3],
+    /// AOVs to keep.
+    pub aovs: AovSet,
 }
 
 impl Default for RenderOptions {
@@ -81,19 +151,61 @@ impl Default for RenderOptions {
             integrator: Integrator::Primary,
             bounces: 2,
             seed: 0,
+            sky: [1.0; 3],
+            aovs: AovSet::default(),
         }
     }
 }
 
-/// A linear-light RGB image.
+/// A rendered frame: linear-light RGB radiance, coverage and the AOVs asked for, each
+/// row-major with the top row first.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
     /// Width in pixels.
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
-    /// Row-major pixels, top row first.
+    /// Radiance: the mean of the pixel's samples (box filter).
     pub pixels: Vec<[f32; 3]>,
+    /// Coverage: the fraction of the pixel's samples whose camera ray hit a triangle. A
+    /// matte, not a compositing alpha: the radiance is not premultiplied by it, and it
+    /// holds what misses see (background or sky) too.
+    pub alpha: Vec<f32>,
+    /// The AOVs asked for.
+    pub aovs: Aovs,
+}
+
+/// Per-pixel AOV buffers, `Some` for those asked for. They describe one surface point per
+/// pixel, the primary hit of the pixel's sample 0, so that a pixel's depth, normal, albedo
+/// and triangle id agree with each other (a mean of ids would mean nothing).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Aovs {
+    /// Hit distance along the unit camera ray; +inf where it misses.
+    pub depth: Option<Vec<f32>>,
+    /// World-space unit shading normal facing the camera; 0 where it misses.
+    pub normal: Option<Vec<[f32; 3]>>,
+    /// Base colour of the surface (linear RGB); 0 where it misses.
+    pub albedo: Option<Vec<[f32; 3]>>,
+    /// Triangle id; `u32::MAX` where it misses.
+    pub prim: Option<Vec<u32>>,
+}
+
+/// What the primary hit of a pixel's sample 0 shows, for the AOVs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Primary {
+    depth: f32,
+    normal: [f32; 3],
+    albedo: [f32; 3],
+    prim: u32,
+}
+
+impl Primary {
+    const MISS: Primary = Primary {
+        depth: f32::INFINITY,
+        normal: [0.0; 3],
+        albedo: [0.0; 3],
+        prim: u32::MAX,
+    };
 }
 
 /// Counters of one render, returned with the image.
@@ -109,7 +221,8 @@ pub struct RenderStats {
 const WAVE_PIXELS: usize = 1 << 18;
 
 const BACKGROUND: [f32; 3] = [0.05, 0.06, 0.08];
-const ALBEDO: f32 = 0.7;
+/// The albedo of every surface until materials are shaded.
+const CLAY: f32 = 0.7;
 
 /// The unit geometric normal of the hit triangle, turned to face against the ray.
 #[inline]
@@ -170,6 +283,12 @@ pub fn render<W: Waves + ?Sized>(
     let n = w as usize * h as usize;
     let spp = options.spp.max(1);
     let mut sum = vec![[0.0f32; 3]; n];
+    let mut covered = vec![0u32; n];
+    let mut primary = if options.aovs.is_empty() {
+        Vec::new()
+    } else {
+        vec![Primary::MISS; n]
+    };
     let mut stats = RenderStats::default();
     let total = n as f64 * spp as f64;
     let mut done = 0.0;
@@ -184,7 +303,15 @@ pub fn render<W: Waves + ?Sized>(
         let mut seconds = 0.0;
         for s in 0..spp {
             let t0 = std::time::Instant::now();
-            let out = &mut sum[start..end];
+            let mut out = WaveOut {
+                radiance: &mut sum[start..end],
+                covered: &mut covered[start..end],
+                primary: if s == 0 && !primary.is_empty() {
+                    Some(&mut primary[start..end])
+                } else {
+                    None
+                },
+            };
             let stats = &mut stats;
             waves.run_wave(&mut || {
                 render_wave(
@@ -194,7 +321,7 @@ pub fn render<W: Waves + ?Sized>(
                     options,
                     scene_diagonal,
                     (start, end, s),
-                    out,
+                    &mut out,
                     stats,
                 )
             })?;
@@ -214,14 +341,35 @@ pub fn render<W: Waves + ?Sized>(
     }
     let inv = 1.0 / spp as f32;
     let pixels = sum.into_iter().map(|c| c.map(|x| x * inv)).collect();
+    let alpha = covered.into_iter().map(|k| k as f32 * inv).collect();
+    let a = options.aovs;
+    let keep = |on: bool| on.then_some(&primary);
+    let aovs = Aovs {
+        depth: keep(a.depth).map(|p| p.iter().map(|q| q.depth).collect()),
+        normal: keep(a.normal).map(|p| p.iter().map(|q| q.normal).collect()),
+        albedo: keep(a.albedo).map(|p| p.iter().map(|q| q.albedo).collect()),
+        prim: keep(a.prim).map(|p| p.iter().map(|q| q.prim).collect()),
+    };
     Ok((
         Image {
             width: w,
             height: h,
             pixels,
+            alpha,
+            aovs,
         },
         stats,
     ))
+}
+
+/// Where one wave accumulates: its pixels' slices of the frame's buffers.
+struct WaveOut<'a> {
+    /// Sums of the samples' radiance.
+    radiance: &'a mut [[f32; 3]],
+    /// Samples whose camera ray hit.
+    covered: &'a mut [u32],
+    /// The primary hits, on sample 0 when AOVs are asked for.
+    primary: Option<&'a mut [Primary]>,
 }
 
 /// One wave: sample `s` of pixels `start..end`, accumulated into `out`.
@@ -233,12 +381,11 @@ fn render_wave(
     options: &RenderOptions,
     scene_diagonal: f32,
     (start, end, s): (usize, usize, u32),
-    out: &mut [[f32; 3]],
+    wave: &mut WaveOut<'_>,
     stats: &mut RenderStats,
 ) {
     let w = options.width;
     let h = options.height;
-    let spp = options.spp.max(1);
     let trace = |rays: &[Ray], query: Query, hits: &mut [Hit], stats: &mut RenderStats| {
         let t0 = std::time::Instant::now();
         accel.trace(rays, query, hits);
@@ -248,20 +395,35 @@ fn render_wave(
     let mut rngs: Vec<Pcg32> = (start..end)
         .map(|p| Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64))
         .collect();
+    // Box filter: every sample, the first too, lies uniformly inside its pixel.
     let rays: Vec<Ray> = (start..end)
         .zip(&mut rngs)
         .map(|(p, rng)| {
-            let (jx, jy) = if spp == 1 {
-                (0.5, 0.5)
-            } else {
-                (rng.next_f32() as f64, rng.next_f32() as f64)
-            };
+            let (jx, jy) = (rng.next_f32() as f64, rng.next_f32() as f64);
             let (x, y) = ((p % w as usize) as f64, (p / w as usize) as f64);
             camera.ray(x + jx, y + jy, w, h)
         })
         .collect();
     let mut hits = vec![Hit::MISS; rays.len()];
     trace(&rays, Query::Closest, &mut hits, stats);
+    for (c, hit) in wave.covered.iter_mut().zip(&hits) {
+        *c += hit.is_hit() as u32;
+    }
+    if let Some(primary) = wave.primary.as_deref_mut() {
+        for ((q, r), hit) in primary.iter_mut().zip(&rays).zip(&hits) {
+            *q = if hit.is_hit() {
+                Primary {
+                    depth: hit.t,
+                    normal: facing_normal(&triangles[hit.prim as usize], r.dir),
+                    albedo: [CLAY; 3],
+                    prim: hit.prim,
+                }
+            } else {
+                Primary::MISS
+            };
+        }
+    }
+    let out = &mut *wave.radiance;
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
             for ((o, r), hit) in out.iter_mut().zip(&rays).zip(&hits) {
@@ -322,7 +484,7 @@ fn render_wave(
                 let mut next_meta = Vec::new();
                 for &(i, r, hit, thr) in &live {
                     if !hit.is_hit() {
-                        add(&mut out[i], [1.0; 3], thr);
+                        add(&mut out[i], options.sky, thr);
                         continue;
                     }
                     if bounce == options.bounces {
@@ -337,7 +499,7 @@ fn render_wave(
                         dir: d,
                         tmax: f32::INFINITY,
                     });
-                    next_meta.push((i, thr * ALBEDO));
+                    next_meta.push((i, thr * CLAY));
                 }
                 if next_rays.is_empty() {
                     break;
