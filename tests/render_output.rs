@@ -1,6 +1,8 @@
 //! The renderer's output against its contract (`proto/rendering.md`): EXR files that
 //! OpenEXR's own library reads back channel by channel, equal to the renderer's buffers;
-//! box-filtered pixels; the same image whatever the thread count; the default view.
+//! box-filtered pixels; the same image whatever the thread count; the default view; and
+//! the `path` integrator against analytic answers (white furnace, a point light's inverse
+//! square law).
 
 use std::path::Path;
 use std::process::Command;
@@ -9,6 +11,7 @@ use rayd::accel::{build, AccelKind, BuildOptions};
 use rayd::geometry::Triangle;
 use rayd::render::camera::{CameraChoice, ViewCamera};
 use rayd::render::image::encode_exr;
+use rayd::render::surface::{PunctualLight, Surfaces};
 use rayd::render::{render, AovSet, Image, Integrator, RenderOptions, Waves};
 
 /// Runs every wave at once, on the calling thread's pool.
@@ -47,7 +50,7 @@ fn render_with(tris: &[Triangle], options: &RenderOptions, camera: &CameraChoice
     let aspect = options.width as f64 / options.height as f64;
     let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
     let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
-    render(tris, accel.as_ref(), &cam, options, diag, &AllAtOnce)
+    render(tris, accel.as_ref(), &cam, options, diag, None, &AllAtOnce)
         .unwrap()
         .0
 }
@@ -250,4 +253,172 @@ fn the_default_view_frames_the_bounds_even_with_scene_cameras() {
         auto,
         ViewCamera::choose(&CameraChoice::Scene(0), &scene, 1.5).unwrap()
     );
+}
+
+/// A Lambertian material of albedo `rho` (no specular layer).
+fn lambertian(rho: f32) -> rayd::scene::Material {
+    rayd::scene::Material {
+        base_color_factor: [rho, rho, rho, 1.0],
+        metallic_factor: 0.0,
+        roughness_factor: 1.0,
+        specular: rayd::scene::Specular {
+            factor: 0.0,
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+fn render_surfaces(
+    tris: &[Triangle],
+    options: &RenderOptions,
+    camera: &CameraChoice,
+    surfaces: &Surfaces,
+) -> Image {
+    let accel = build(AccelKind::Mbvh8, tris, &BuildOptions::default()).unwrap();
+    let bounds = rayd::scene::bounds_of(tris);
+    let aspect = options.width as f64 / options.height as f64;
+    let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
+    let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
+    render(
+        tris,
+        accel.as_ref(),
+        &cam,
+        options,
+        diag,
+        Some(surfaces),
+        &AllAtOnce,
+    )
+    .unwrap()
+    .0
+}
+
+/// The 12 triangles of the axis-aligned cube of half-size `h` around the origin, wound
+/// outwards.
+fn cube(h: f32) -> Vec<Triangle> {
+    let mut out = Vec::new();
+    for axis in 0..3 {
+        for sign in [-1.0f32, 1.0] {
+            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+            let corner = |a: f32, b: f32| {
+                let mut p = [0.0; 3];
+                p[axis] = sign * h;
+                p[u] = a * h;
+                p[v] = b * h;
+                p
+            };
+            let (p00, p10, p11, p01) = (
+                corner(-1.0, -1.0),
+                corner(1.0, -1.0),
+                corner(1.0, 1.0),
+                corner(-1.0, 1.0),
+            );
+            if sign > 0.0 {
+                out.push(tri(p00, p10, p11));
+                out.push(tri(p00, p11, p01));
+            } else {
+                out.push(tri(p00, p11, p10));
+                out.push(tri(p00, p01, p11));
+            }
+        }
+    }
+    out
+}
+
+/// White furnace: a convex object of albedo ρ under a constant sky L reflects exactly ρL
+/// once it may scatter (every scattered ray leaves it and sees the sky).
+#[test]
+fn white_furnace_gives_albedo_times_sky() {
+    let (rho, sky) = (0.6f32, [0.8f32, 0.5, 1.5]);
+    let tris = cube(1.0);
+    let surfaces = Surfaces::uniform(tris.len(), lambertian(rho), Vec::new());
+    for bounces in [1, 2, 5] {
+        let options = RenderOptions {
+            width: 24,
+            height: 24,
+            spp: 4,
+            integrator: Integrator::Path,
+            bounces,
+            seed: 3,
+            sky,
+            ..RenderOptions::default()
+        };
+        let camera = CameraChoice::LookAt {
+            eye: [2.0, 2.5, 3.0],
+            target: [0.0; 3],
+            up: [0.0, 1.0, 0.0],
+            fov: 40.0,
+        };
+        let img = render_surfaces(&tris, &options, &camera, &surfaces);
+        let mut covered = 0;
+        for (p, a) in img.pixels.iter().zip(&img.alpha) {
+            if *a == 1.0 {
+                covered += 1;
+                for c in 0..3 {
+                    let want = rho * sky[c];
+                    assert!((p[c] - want).abs() < 0.02 * want, "{bounces}: {p:?}");
+                }
+            } else if *a == 0.0 {
+                assert_eq!(*p, sky);
+            }
+        }
+        assert!(covered > 100, "{covered}");
+    }
+    // No scattering: surfaces are black, the sky shows.
+    let options = RenderOptions {
+        width: 8,
+        height: 8,
+        integrator: Integrator::Path,
+        bounces: 0,
+        sky,
+        ..RenderOptions::default()
+    };
+    let img = render_surfaces(&tris, &options, &look(), &surfaces);
+    for (p, a) in img.pixels.iter().zip(&img.alpha) {
+        if *a == 1.0 {
+            assert_eq!(*p, [0.0; 3]);
+        }
+    }
+}
+
+/// A point light of intensity I over a Lambertian plane of albedo ρ: the radiance seen at
+/// a point is ρ/π · I cos θ / r².
+#[test]
+fn point_light_over_a_lambertian_plane_follows_the_inverse_square_law() {
+    let rho = 0.5f32;
+    let (height, intensity) = (2.0f32, 30.0f32);
+    let tris = vec![
+        tri([-50.0, 0.0, -50.0], [50.0, 0.0, 50.0], [50.0, 0.0, -50.0]),
+        tri([-50.0, 0.0, -50.0], [-50.0, 0.0, 50.0], [50.0, 0.0, 50.0]),
+    ];
+    let light = PunctualLight::Point {
+        position: glam::Vec3::new(0.0, height, 0.0),
+        intensity: glam::Vec3::splat(intensity),
+        range: f32::INFINITY,
+        cone: None,
+    };
+    let surfaces = Surfaces::uniform(tris.len(), lambertian(rho), vec![light]);
+    for x in [0.0f32, 0.7, 1.5, 3.0, 6.0] {
+        let target = [x as f64, 0.0, 0.3];
+        let camera = CameraChoice::LookAt {
+            eye: [x as f64 + 0.5, 5.0, 1.0],
+            target,
+            up: [0.0, 1.0, 0.0],
+            fov: 0.01,
+        };
+        let options = RenderOptions {
+            width: 1,
+            height: 1,
+            integrator: Integrator::Path,
+            bounces: 1,
+            sky: [0.0; 3],
+            ..RenderOptions::default()
+        };
+        let img = render_surfaces(&tris, &options, &camera, &surfaces);
+        let r2 = x * x + 0.09 + height * height;
+        let cos = height / r2.sqrt();
+        let want = rho / std::f32::consts::PI * intensity * cos / r2;
+        let got = img.pixels[0][0];
+        assert!((got - want).abs() < 1e-3 * want, "x = {x}: {got} vs {want}");
+    }
 }

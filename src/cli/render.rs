@@ -6,10 +6,11 @@ use std::sync::Arc;
 use serde_json::json;
 
 use super::{CameraArgs, CliError, CoreArgs, PathArg};
-use crate::formats::FormatError;
+use crate::formats::{FormatError, Parts};
 use crate::jobs::render::{frame_times, FrameInput};
 use crate::jobs::{Geometry, GeometryKey, RenderRequest};
 use crate::render::image::ImageFormat;
+use crate::render::surface::Surfaces;
 use crate::render::{Aov, AovSet, Integrator};
 
 #[derive(clap::Args, Debug)]
@@ -117,23 +118,30 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     // Parsed once; each frame's time re-poses it through the scene's rig (bit-identical to
     // loading the file at that time), so a sequence never reads the file again.
     super::load_options(a.core.time)?;
-    let scene = crate::formats::load_scene(&a.scene, &Default::default())?;
+    let surfaces = request.needs_surfaces();
+    let parts = if surfaces {
+        Parts::Shading
+    } else {
+        Parts::Geometry
+    };
+    let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), parts)?;
     let frame_at = |time: Option<f64>| {
-        let (triangles, cameras) = match time {
-            None => (scene.triangles.clone(), scene.cameras.clone()),
-            Some(t) => {
-                let pose = scene
-                    .evaluate(t, crate::scene::Compute::Positions)
-                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?;
-                (pose.triangles, pose.cameras)
-            }
+        let posed = match time {
+            None => None,
+            Some(t) => Some(
+                scene
+                    .at(t)
+                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?,
+            ),
         };
+        let s = posed.as_ref().unwrap_or(&scene);
         Ok(FrameInput {
             geometry: Geometry {
                 key: GeometryKey::new(&path, 1, time),
-                triangles: Arc::new(triangles),
+                triangles: Arc::new(s.triangles.clone()),
             },
-            cameras: Arc::new(cameras),
+            cameras: Arc::new(s.cameras.clone()),
+            surfaces: surfaces.then(|| Arc::new(Surfaces::of(s))),
         })
     };
     let pattern = a.out.display().to_string();

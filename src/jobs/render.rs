@@ -9,6 +9,7 @@ use super::{seconds_since, Control, Engine, Geometry, JobError, Limits};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
+use crate::render::surface::Surfaces;
 use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
@@ -127,12 +128,19 @@ impl RenderRequest {
         Ok(())
     }
 
+    /// Whether frames need their scene's materials, shading attributes and lights: `path`
+    /// shades with them and the `albedo` and `normal` AOVs show them.
+    pub fn needs_surfaces(&self) -> bool {
+        self.integrator == Integrator::Path || self.aovs.albedo || self.aovs.normal
+    }
+
     /// Trace calls one frame makes (camera rays per sample, plus one per AO sample or path
     /// bounce) per wave, and rays in all, for `auto`'s model.
     fn work(&self) -> (usize, usize) {
         let per_sample = match self.integrator {
             Integrator::Ao => 2,
-            Integrator::Path => 1 + self.bounces as usize,
+            // Continuation and shadow rays per bounce.
+            Integrator::Path => 1 + 2 * self.bounces as usize,
             _ => 1,
         };
         let batches = self.spp as usize * per_sample;
@@ -149,6 +157,9 @@ pub struct FrameInput {
     pub geometry: Geometry,
     /// The scene's cameras at that time.
     pub cameras: Arc<Vec<Camera>>,
+    /// Materials, shading attributes and lights at that time, when the request needs them
+    /// ([`RenderRequest::needs_surfaces`]); `None`: glTF's default material everywhere.
+    pub surfaces: Option<Arc<Surfaces>>,
 }
 
 /// Where one frame's time went.
@@ -281,6 +292,7 @@ impl Engine {
                 &camera,
                 &options,
                 diagonal,
+                input.surfaces.as_deref(),
                 &waves,
             )?;
             let render_seconds = seconds_since(t1);

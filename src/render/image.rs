@@ -263,7 +263,12 @@ mod tests {
             names,
             ["A", "B", "G", "R", "depth.Z", "normal.X", "normal.Y", "normal.Z", "prim.id"]
         );
-        let get = |name: &str| &ch.iter().find(|c| c.name == name).unwrap().sample_data;
+        let get = |name: &str| {
+            &ch.iter()
+                .find(|c| c.name.to_string() == name)
+                .unwrap()
+                .sample_data
+        };
         match get("R") {
             FlatSamples::F32(v) => {
                 assert_eq!(v, &im.pixels.iter().map(|p| p[0]).collect::<Vec<_>>())

@@ -113,8 +113,8 @@ impl PunctualLight {
                     None => 1.0,
                     Some((axis, cos_outer, cos_inner)) => {
                         let c = (-wi).dot(axis);
-                        let t = ((c - cos_outer) / (cos_inner - cos_outer).max(1e-4))
-                            .clamp(0.0, 1.0);
+                        let t =
+                            ((c - cos_outer) / (cos_inner - cos_outer).max(1e-4)).clamp(0.0, 1.0);
                         t * t
                     }
                 };
@@ -308,10 +308,15 @@ mod tests {
         assert_eq!(i.irradiance, Vec3::splat(2.0));
         assert_eq!(i.wi, Vec3::Y);
         let spot = PunctualLight::Point {
+            position: Vec3::new(0.0, 2.0, 0.0),
+            intensity: Vec3::splat(8.0),
+            range: f32::INFINITY,
             cone: Some((Vec3::NEG_Y, 0.5f32.cos(), 0.3f32.cos())),
-            ..l
         };
-        assert_eq!(spot.incident(Vec3::ZERO).unwrap().irradiance, Vec3::splat(2.0));
+        assert_eq!(
+            spot.incident(Vec3::ZERO).unwrap().irradiance,
+            Vec3::splat(2.0)
+        );
         assert!(spot.incident(Vec3::new(5.0, 0.0, 0.0)).is_none());
     }
 }
