@@ -476,7 +476,10 @@ impl App {
                     ),
                     None => None,
                 };
-                Some(Arc::new(Surfaces::of(posed.as_ref().unwrap_or(&shaded))))
+                Some(Arc::new(
+                    Surfaces::of(posed.as_ref().unwrap_or(&shaded))
+                        .map_err(|e| JobError::Geometry(e.to_string()))?,
+                ))
             } else {
                 None
             };

@@ -42,7 +42,7 @@ pub(super) struct RenderArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Radiance R,G,B of the constant environment (`path`).
-    #[arg(long, value_parser = super::parse_vec3, default_value = "1,1,1")]
+    #[arg(long, value_parser = super::parse_vec3, default_value = "1,1,1", allow_hyphen_values = true)]
     sky: [f64; 3],
     /// AOV channels to add to an EXR, comma-separated: depth, normal, albedo, prim.
     #[arg(long, value_delimiter = ',')]
@@ -141,7 +141,12 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
                 triangles: Arc::new(s.triangles.clone()),
             },
             cameras: Arc::new(s.cameras.clone()),
-            surfaces: surfaces.then(|| Arc::new(Surfaces::of(s))),
+            surfaces: match surfaces {
+                true => Some(Arc::new(Surfaces::of(s).map_err(|e| {
+                    crate::jobs::JobError::Geometry(format!("{path}: {e}"))
+                })?)),
+                false => None,
+            },
         })
     };
     let pattern = a.out.display().to_string();

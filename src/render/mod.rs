@@ -11,6 +11,7 @@ pub mod image;
 pub mod rng;
 pub mod sampling;
 pub mod surface;
+pub mod texture;
 
 use crate::accel::{Intersector, Query};
 use crate::geometry::{dot, Hit, Ray, Triangle};

@@ -11,6 +11,7 @@
 use glam::{DMat4, DVec3, Vec3};
 
 use super::brdf::Bsdf;
+use super::texture::{TextureError, TextureSet};
 use crate::geometry::{Hit, Triangle};
 use crate::scene::{LightKind, Material, Scene, Shading};
 
@@ -98,7 +99,7 @@ impl PunctualLight {
             } => {
                 let d = position - p;
                 let r2 = d.length_squared();
-                if !(r2 > 0.0) {
+                if r2 <= 0.0 || !r2.is_finite() {
                     return None;
                 }
                 let r = r2.sqrt();
@@ -147,6 +148,7 @@ pub struct SurfacePoint {
 pub struct Surfaces {
     shading: Shading,
     materials: Vec<Material>,
+    textures: TextureSet,
     /// The frame's lights.
     pub lights: Vec<PunctualLight>,
 }
@@ -157,29 +159,31 @@ static DEFAULT_MATERIAL: std::sync::LazyLock<Material> =
 impl Surfaces {
     /// The surfaces of `scene` as posed (its triangles, shading normals and lights are
     /// those of the frame). A scene loaded without shading data gets glTF's default
-    /// material and face normals everywhere.
-    pub fn of(scene: &Scene) -> Surfaces {
+    /// material and face normals everywhere. Decodes the textures the materials use; an
+    /// image that does not decode is an error that names it.
+    pub fn of(scene: &Scene) -> Result<Surfaces, TextureError> {
         let shading = scene
             .shading
             .clone()
             .unwrap_or_else(|| Shading::flat(scene.triangles.len()));
-        Surfaces {
+        Ok(Surfaces {
             shading,
             materials: scene.materials.clone(),
+            textures: TextureSet::of(scene)?,
             lights: scene
                 .lights
                 .iter()
                 .map(|l| PunctualLight::place(l, &l.to_world))
                 .collect(),
-        }
+        })
     }
 
     /// Surfaces of `triangles` triangles of glTF's default material, lit by `lights`.
     pub fn default_material(triangles: usize, lights: Vec<PunctualLight>) -> Surfaces {
         Surfaces {
             shading: Shading::flat(triangles),
-            materials: Vec::new(),
             lights,
+            ..Surfaces::default()
         }
     }
 
@@ -191,6 +195,7 @@ impl Surfaces {
             shading,
             materials: vec![material],
             lights,
+            ..Surfaces::default()
         }
     }
 
@@ -235,11 +240,31 @@ impl Surfaces {
             }
         }
         let m = self.material(prim);
-        let base = Vec3::from_slice(&m.base_color_factor[..3]) * colour.truncate();
+        let uv_of = |attr: &[glam::Vec2]| -> glam::Vec2 {
+            let Some(c) = corners else {
+                return glam::Vec2::ZERO;
+            };
+            let mut sum = glam::Vec2::ZERO;
+            for (k, &i) in c.iter().enumerate() {
+                sum += attr.get(i as usize).copied().unwrap_or_default() * b[k];
+            }
+            sum
+        };
+        let uv = [uv_of(&self.shading.uv0), uv_of(&self.shading.uv1)];
+        let tex = |r: &Option<crate::scene::TextureRef>, srgb: bool| {
+            r.as_ref()
+                .and_then(|r| self.textures.sample(r, uv, srgb))
+                .unwrap_or(glam::Vec4::ONE)
+        };
+        let base = Vec3::from_slice(&m.base_color_factor[..3])
+            * colour.truncate()
+            * tex(&m.base_color_texture, true).truncate();
+        // glTF: roughness in G, metalness in B.
+        let mr = tex(&m.metallic_roughness_texture, false);
         let bsdf = Bsdf::new(
             base,
-            m.metallic_factor,
-            m.roughness_factor,
+            m.metallic_factor * mr.z,
+            m.roughness_factor * mr.y,
             m.specular.factor,
             Vec3::from(m.specular.color_factor),
         );
@@ -247,7 +272,9 @@ impl Surfaces {
             ng,
             ns,
             bsdf,
-            emission: Vec3::from(m.emissive_factor) * m.emissive_strength,
+            emission: Vec3::from(m.emissive_factor)
+                * m.emissive_strength
+                * tex(&m.emissive_texture, true).truncate(),
         }
     }
 }
