@@ -242,6 +242,24 @@ fn render_writes_png_and_exr() {
     }
     let (ok, _, err) = rayd(&["render", p(&scene), "-o", "x.jpg"]);
     assert!(!ok && err.contains(".png or .exr"), "{err}");
+    let (ok, _, err) = rayd(&["render", p(&scene), "-o", "x.png", "--aov", "depth"]);
+    assert!(!ok && err.contains("aov") && err.contains("exr"), "{err}");
+    let (ok, _, err) = rayd(&["render", p(&scene), "-o", "x.exr", "--sky", "1,-1,0"]);
+    assert!(!ok && err.contains("sky"), "{err}");
+    let out = dir.path().join("path.exr");
+    let (ok, _, err) = rayd(&[
+        "render",
+        p(&scene),
+        "-o",
+        p(&out),
+        "--integrator",
+        "path",
+        "--aov",
+        "depth,normal,albedo,prim",
+        "--sky",
+        "0.2,0.3,0.4",
+    ]);
+    assert!(ok, "{err}");
 }
 
 #[test]

@@ -318,6 +318,52 @@ fn the_service_end_to_end() {
     let exr = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
     assert_eq!(exr.header("content-type"), Some("image/x-exr"));
     assert_eq!(&exr.body[..4], &[0x76, 0x2f, 0x31, 0x01]);
+    // A shaded render with a sky and AOVs is the same file as `rayd render` makes.
+    let job = render(
+        r#"{"width": 24, "height": 16, "spp": 2, "format": "exr", "version": 1, "integrator": "path", "sky": [0.5, 0.7, 1.2], "aov": ["albedo", "prim"], "accel": "mbvh8", "seed": 4}"#,
+    );
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    let served = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    let out = dir.path().join("fox.exr");
+    let cli = Command::new(BIN)
+        .args(["render", fox.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .args([
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--spp",
+            "2",
+            "--integrator",
+            "path",
+        ])
+        .args([
+            "--sky",
+            "0.5,0.7,1.2",
+            "--aov",
+            "albedo,prim",
+            "--accel",
+            "mbvh8",
+        ])
+        .args(["--seed", "4"])
+        .output()
+        .unwrap();
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+    assert!(
+        served.body == std::fs::read(&out).unwrap(),
+        "service and CLI differ"
+    );
+    let bad = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        br#"{"aov": ["depth"]}"#,
+    );
+    assert_eq!(bad.status, 400, "{}", String::from_utf8_lossy(&bad.body));
     let job = render(
         r#"{"width": 16, "height": 16, "version": 1, "frames": {"start": 0, "end": 1, "step": 0.5}}"#,
     );

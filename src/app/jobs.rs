@@ -18,6 +18,7 @@ use super::{App, AppError, RenderSpec, TraceParams};
 use crate::geometry::Ray;
 use crate::jobs::render::FrameInput;
 use crate::jobs::{sched, trace, CancelToken, JobError};
+use crate::render::surface::Surfaces;
 use crate::store::{BlobId, JobKind, JobOutcome, JobRecord, JobState, NewJob};
 
 /// A job as the API shows it (contract §5).
@@ -467,10 +468,39 @@ impl App {
         let version = Some(record.version as u32);
         // Geometry for each time comes through the store and caches (async); the job's
         // thread waits for it.
+        // Surfaces (materials, shading normals, lights) come from the file, posed at the
+        // frame's time for version 1; later versions move positions only, so they shade
+        // with the file's static normals and lights.
+        let needs_surfaces = request.needs_surfaces();
         let frame_at = |time: Option<f64>| {
-            rt.block_on(self.geometry(&scene, version, time.filter(|_| version == Some(1))))
-                .map(|(geometry, cameras)| FrameInput { geometry, cameras })
-                .map_err(|e| JobError::Geometry(e.to_string()))
+            let time = time.filter(|_| version == Some(1));
+            let (geometry, cameras) = rt
+                .block_on(self.geometry(&scene, version, time))
+                .map_err(|e| JobError::Geometry(e.to_string()))?;
+            let surfaces = if needs_surfaces {
+                let shaded = rt
+                    .block_on(self.shaded_scene(&scene))
+                    .map_err(|e| JobError::Geometry(e.to_string()))?;
+                let posed = match time {
+                    Some(t) => Some(
+                        shaded
+                            .at(t)
+                            .map_err(|e| JobError::Geometry(e.to_string()))?,
+                    ),
+                    None => None,
+                };
+                Some(Arc::new(
+                    Surfaces::of(posed.as_ref().unwrap_or(&shaded))
+                        .map_err(|e| JobError::Geometry(e.to_string()))?,
+                ))
+            } else {
+                None
+            };
+            Ok(FrameInput {
+                geometry,
+                cameras,
+                surfaces,
+            })
         };
         let mut results = Vec::new();
         let mime = request.format.mime();

@@ -14,7 +14,7 @@ use serde_json::json;
 
 use super::{App, AppError, TraceParams};
 use crate::formats::binary::read_tri;
-use crate::formats::LoadOptions;
+use crate::formats::{LoadOptions, Parts};
 use crate::geometry::{Ray, Triangle};
 use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
 use crate::scene::Scene;
@@ -114,6 +114,11 @@ pub fn scene_info(scene: &Scene) -> serde_json::Value {
 
 /// Parses an upload (CPU work: call on the pool).
 fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
+    parse_with(kind, bytes, Parts::Geometry)
+}
+
+/// [`parse`] keeping `parts` (a TRI1 upload has geometry only).
+fn parse_with(kind: UploadKind, bytes: &[u8], parts: Parts) -> Result<Scene, AppError> {
     let upload = |detail: String| AppError::BadUpload {
         detail,
         byte_offset: None,
@@ -123,7 +128,7 @@ fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
             .map(Scene::from_triangles)
             .map_err(|e| upload(e.to_string())),
         UploadKind::Glb | UploadKind::Gltf => {
-            crate::formats::gltf::load(bytes, None, &LoadOptions { time: None })
+            crate::formats::gltf::load_with(bytes, None, &LoadOptions { time: None }, parts)
                 .map_err(|e| upload(e.to_string()))
         }
     }
@@ -135,6 +140,9 @@ type Cameras = Arc<Vec<crate::scene::Camera>>;
 /// A parsed scene: its static pose, and the rig that poses it at other times.
 struct Loaded {
     scene: Arc<Scene>,
+    /// The same file with shading data, materials and lights, parsed on first use by a
+    /// render that shades (`path`, or the `albedo`/`normal` AOVs).
+    shaded: std::sync::OnceLock<Arc<Scene>>,
 }
 
 /// Parsed scenes and evaluated geometry, in memory.
@@ -241,6 +249,7 @@ impl App {
             record.id.clone(),
             Arc::new(Loaded {
                 scene: Arc::new(scene),
+                shaded: std::sync::OnceLock::new(),
             }),
         );
         Ok((SceneView::from_record(record), created))
@@ -289,6 +298,7 @@ impl App {
         let scene = self.cpu(move || parse(kind, &b)).await??;
         let loaded = Arc::new(Loaded {
             scene: Arc::new(scene),
+            shaded: std::sync::OnceLock::new(),
         });
         self.inner
             .scenes
@@ -296,6 +306,26 @@ impl App {
             .loaded
             .insert(id.to_string(), Arc::clone(&loaded));
         Ok(loaded)
+    }
+
+    /// Scene `id` with its shading data, materials and lights, parsed once on first use.
+    pub async fn shaded_scene(&self, id: &str) -> Result<Arc<Scene>, AppError> {
+        let loaded = self.loaded(id).await?;
+        if let Some(s) = loaded.shaded.get() {
+            return Ok(Arc::clone(s));
+        }
+        let record = self.store().get_scene(id).await?;
+        let kind = UploadKind::from_media_type(&record.content_type).ok_or_else(|| {
+            AppError::Internal(format!(
+                "scene {id} has an unknown stored type {}",
+                record.content_type
+            ))
+        })?;
+        let bytes = self.store().get_blob(id).await?;
+        let scene = self
+            .cpu(move || parse_with(kind, &bytes, Parts::Shading))
+            .await??;
+        Ok(Arc::clone(loaded.shaded.get_or_init(|| Arc::new(scene))))
     }
 
     /// Stores new positions for every triangle of scene `id` as its next version.

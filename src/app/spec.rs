@@ -9,7 +9,7 @@ use crate::formats::HitFormat;
 use crate::jobs::{InvalidPolicy, RenderRequest, TraceRequest};
 use crate::render::camera::CameraChoice;
 use crate::render::image::ImageFormat;
-use crate::render::Integrator;
+use crate::render::{Aov, AovSet, Integrator};
 
 /// The trace route's query string: the options of `rayd trace`, plus which geometry.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -133,9 +133,9 @@ pub struct RenderSpec {
     /// Constant environment radiance (default `[1, 1, 1]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sky: Option<[f32; 3]>,
-    /// AOV channels for EXR output.
+    /// AOV channels for EXR output (each at most once).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub aov: Vec<String>,
+    pub aov: Vec<Aov>,
     /// Animation times: one image per time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frames: Option<FramesSpec>,
@@ -205,14 +205,30 @@ impl RenderSpec {
                 return Err(bad("time", "must be a finite number of seconds"));
             }
         }
-        if self.sky.is_some_and(|s| s != [1.0, 1.0, 1.0]) {
-            return Err(unsupported(
+        let sky = self.sky.unwrap_or([1.0; 3]);
+        if let Some(x) = sky.iter().find(|x| !(x.is_finite() && **x >= 0.0)) {
+            return Err(bad(
                 "sky",
-                "this renderer lights every scene with the default white sky; other skies are not supported yet",
+                format!("{x} is not a finite radiance of at least 0"),
             ));
         }
-        if !self.aov.is_empty() {
-            return Err(unsupported("aov", "AOV channels are not supported yet"));
+        if let Some(a) = self
+            .aov
+            .iter()
+            .enumerate()
+            .find_map(|(i, a)| self.aov[..i].contains(a).then_some(a))
+        {
+            return Err(bad("aov", format!("'{a}' is listed twice")));
+        }
+        let aovs = AovSet::of(&self.aov);
+        if !aovs.is_empty() && self.format != ImageFormat::Exr {
+            return Err(bad(
+                "aov",
+                format!(
+                    "AOVs are EXR channels; the {} output has none (ask for exr)",
+                    self.format
+                ),
+            ));
         }
         if self.callback.is_some() {
             return Err(unsupported(
@@ -244,6 +260,8 @@ impl RenderSpec {
                 accel: self.accel,
                 build: self.build,
                 precision: self.precision,
+                sky,
+                aovs,
             },
             times,
         ))

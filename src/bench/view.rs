@@ -153,6 +153,12 @@ impl View {
                     CameraChoice::Auto if scene.cameras.is_empty() => "default framing view".into(),
                     CameraChoice::Auto => "scene camera 0".into(),
                 };
+                // The bench keeps its own default of the scene's camera 0 (a render's
+                // default view frames the bounds even when the scene has cameras).
+                let choice = match choice {
+                    CameraChoice::Auto if !scene.cameras.is_empty() => &CameraChoice::Scene(0),
+                    other => other,
+                };
                 (ViewCamera::choose(choice, scene, aspect)?, description)
             }
         };

@@ -182,7 +182,7 @@ fn load_options(time: Option<f64>) -> Result<crate::formats::LoadOptions, CliErr
 /// How a command picks its camera.
 #[derive(clap::Args, Debug, Clone)]
 struct CameraArgs {
-    /// Use the scene's camera with this index (default: camera 0 if any, else a default view).
+    /// Use the scene's camera with this index (default: a view framing the scene's bounds).
     #[arg(long, conflicts_with_all = ["eye", "target"])]
     camera: Option<usize>,
     /// Eye position x,y,z of a look-at camera (with --target).

@@ -6,11 +6,12 @@ use std::sync::Arc;
 use serde_json::json;
 
 use super::{CameraArgs, CliError, CoreArgs, PathArg};
-use crate::formats::FormatError;
+use crate::formats::{FormatError, Parts};
 use crate::jobs::render::{frame_times, FrameInput};
 use crate::jobs::{Geometry, GeometryKey, RenderRequest};
 use crate::render::image::ImageFormat;
-use crate::render::Integrator;
+use crate::render::surface::Surfaces;
+use crate::render::{Aov, AovSet, Integrator};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct RenderArgs {
@@ -40,6 +41,12 @@ pub(super) struct RenderArgs {
     /// Seed of the sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Radiance R,G,B of the constant environment (`path`).
+    #[arg(long, value_parser = super::parse_vec3, default_value = "1,1,1", allow_hyphen_values = true)]
+    sky: [f64; 3],
+    /// AOV channels to add to an EXR, comma-separated: depth, normal, albedo, prim.
+    #[arg(long, value_delimiter = ',')]
+    aov: Vec<Aov>,
     /// Animation times START:END:STEP (seconds): one image per time.
     #[arg(long, conflicts_with = "time")]
     frames: Option<String>,
@@ -103,29 +110,43 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         accel: a.core.accel,
         build: a.core.build,
         precision: a.core.precision,
+        sky: a.sky.map(|x| x as f32),
+        aovs: AovSet::of(&a.aov),
     };
     request.check(engine.limits(), times.len())?;
     let path = a.scene.display().to_string();
     // Parsed once; each frame's time re-poses it through the scene's rig (bit-identical to
     // loading the file at that time), so a sequence never reads the file again.
     super::load_options(a.core.time)?;
-    let scene = crate::formats::load_scene(&a.scene, &Default::default())?;
+    let surfaces = request.needs_surfaces();
+    let parts = if surfaces {
+        Parts::Shading
+    } else {
+        Parts::Geometry
+    };
+    let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), parts)?;
     let frame_at = |time: Option<f64>| {
-        let (triangles, cameras) = match time {
-            None => (scene.triangles.clone(), scene.cameras.clone()),
-            Some(t) => {
-                let pose = scene
-                    .evaluate(t, crate::scene::Compute::Positions)
-                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?;
-                (pose.triangles, pose.cameras)
-            }
+        let posed = match time {
+            None => None,
+            Some(t) => Some(
+                scene
+                    .at(t)
+                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?,
+            ),
         };
+        let s = posed.as_ref().unwrap_or(&scene);
         Ok(FrameInput {
             geometry: Geometry {
                 key: GeometryKey::new(&path, 1, time),
-                triangles: Arc::new(triangles),
+                triangles: Arc::new(s.triangles.clone()),
             },
-            cameras: Arc::new(cameras),
+            cameras: Arc::new(s.cameras.clone()),
+            surfaces: match surfaces {
+                true => Some(Arc::new(Surfaces::of(s).map_err(|e| {
+                    crate::jobs::JobError::Geometry(format!("{path}: {e}"))
+                })?)),
+                false => None,
+            },
         })
     };
     let pattern = a.out.display().to_string();

@@ -9,7 +9,8 @@ use super::{seconds_since, Control, Engine, Geometry, JobError, Limits};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
-use crate::render::{Integrator, RenderOptions, Waves};
+use crate::render::surface::Surfaces;
+use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
 /// What to render (the options of `rayd render` and of the render route's body, less the
@@ -38,6 +39,10 @@ pub struct RenderRequest {
     pub build: BuildQuality,
     /// Ray/triangle test.
     pub precision: Precision,
+    /// Radiance of the constant environment of `path` (linear RGB, each finite and ≥ 0).
+    pub sky: [f32; 3],
+    /// AOV channels to add (EXR only).
+    pub aovs: AovSet,
 }
 
 impl Default for RenderRequest {
@@ -54,6 +59,8 @@ impl Default for RenderRequest {
             accel: AccelKind::Auto,
             build: BuildQuality::Sah,
             precision: Precision::Watertight,
+            sky: [1.0; 3],
+            aovs: AovSet::default(),
         }
     }
 }
@@ -93,6 +100,21 @@ impl RenderRequest {
                 detail: "must be at least 1".into(),
             });
         }
+        if let Some(x) = self.sky.iter().find(|x| !(x.is_finite() && **x >= 0.0)) {
+            return Err(JobError::Invalid {
+                field: "sky",
+                detail: format!("{x} is not a finite radiance of at least 0"),
+            });
+        }
+        if !self.aovs.is_empty() && self.format != ImageFormat::Exr {
+            return Err(JobError::Invalid {
+                field: "aov",
+                detail: format!(
+                    "AOVs are EXR channels; the {} output has none (ask for exr)",
+                    self.format
+                ),
+            });
+        }
         let checks = [
             ("spp", self.spp as u64, limits.max_spp as u64),
             ("bounces", self.bounces as u64, limits.max_bounces as u64),
@@ -106,12 +128,19 @@ impl RenderRequest {
         Ok(())
     }
 
+    /// Whether frames need their scene's materials, shading attributes and lights: `path`
+    /// shades with them and the `albedo` and `normal` AOVs show them.
+    pub fn needs_surfaces(&self) -> bool {
+        self.integrator == Integrator::Path || self.aovs.albedo || self.aovs.normal
+    }
+
     /// Trace calls one frame makes (camera rays per sample, plus one per AO sample or path
     /// bounce) per wave, and rays in all, for `auto`'s model.
     fn work(&self) -> (usize, usize) {
         let per_sample = match self.integrator {
             Integrator::Ao => 2,
-            Integrator::Path => 1 + self.bounces as usize,
+            // Continuation and shadow rays per bounce.
+            Integrator::Path => 1 + 2 * self.bounces as usize,
             _ => 1,
         };
         let batches = self.spp as usize * per_sample;
@@ -128,6 +157,9 @@ pub struct FrameInput {
     pub geometry: Geometry,
     /// The scene's cameras at that time.
     pub cameras: Arc<Vec<Camera>>,
+    /// Materials, shading attributes and lights at that time, when the request needs them
+    /// ([`RenderRequest::needs_surfaces`]); `None`: glTF's default material everywhere.
+    pub surfaces: Option<Arc<Surfaces>>,
 }
 
 /// Where one frame's time went.
@@ -245,6 +277,8 @@ impl Engine {
                 integrator: request.integrator,
                 bounces: request.bounces,
                 seed: request.seed,
+                sky: request.sky,
+                aovs: request.aovs,
             };
             let waves = FrameWaves {
                 control,
@@ -258,6 +292,7 @@ impl Engine {
                 &camera,
                 &options,
                 diagonal,
+                input.surfaces.as_deref(),
                 &waves,
             )?;
             let render_seconds = seconds_since(t1);

@@ -7,7 +7,8 @@ use crate::scene::{Camera, Projection, Scene};
 /// Which camera a render or benchmark uses.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub enum CameraChoice {
-    /// glTF camera 0 when the scene has one, else a default view framing the bounds.
+    /// Neither a scene camera nor a look-at one was named: a default view framing the
+    /// bounds, even when the scene has cameras (`proto/rendering.md`, "Camera").
     #[default]
     Auto,
     /// The scene's camera with this index.
@@ -147,7 +148,8 @@ impl ViewCamera {
     }
 
     /// A default view that frames `bounds`: looking at its centre from the front-right and a
-    /// little above, far enough that the bounding sphere fills the 45° field of view.
+    /// little above (direction `(0.55, 0.35, 1)`), up +Y, 45° vertical field of view, far
+    /// enough that the bounding sphere fits with 5 % margin.
     pub fn framing(bounds: &Aabb, aspect: f64) -> ViewCamera {
         let c = bounds.center().map(f64::from);
         let radius = (0.5 * bounds.diagonal() as f64).max(1e-3);
@@ -193,10 +195,9 @@ impl ViewCamera {
                 up,
                 fov,
             } => ViewCamera::look_at(*eye, *target, *up, *fov, aspect),
-            CameraChoice::Auto => match (cameras.first(), bounds) {
-                (Some(cam), _) => ViewCamera::from_scene(cam, aspect),
-                (None, Some(b)) => Ok(ViewCamera::framing(&b, aspect)),
-                (None, None) => {
+            CameraChoice::Auto => match bounds {
+                Some(b) => Ok(ViewCamera::framing(&b, aspect)),
+                None => {
                     ViewCamera::look_at([0.0, 0.0, 1.0], [0.0; 3], [0.0, 1.0, 0.0], 45.0, aspect)
                 }
             },
