@@ -12,9 +12,10 @@
 //! Both tests are the SIMD layer's scalar tests (`accel::triangle`) transposed to 8 rays × 1
 //! triangle with the *same operations in the same order* (no FMA), so `t` is bit-identical
 //! to what `brute` computes for the same pair, and the final `u, v` come from the layer's
-//! scalar test itself.
+//! scalar test itself. The watertight t is the layer's `refined_t` (f64, for each lane
+//! whose error window meets the interval), called on the same inputs as in `brute`.
 
-use crate::accel::triangle::{MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{refined_t64, window8, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -102,6 +103,43 @@ pub struct WtLanes<S: Simd> {
     org: [S::F8; 3],
     /// Shear `d[kx]/d[kz], d[ky]/d[kz], 1/d[kz]`.
     shear: [S::F8; 3],
+    /// Origins, unpermuted, for `refined_t`.
+    org1: [S::F8; 3],
+    /// Directions, unpermuted, for `refined_t`.
+    dir1: [S::F8; 3],
+}
+
+/// The layer's `refined_t` for the lanes of `bits`, each with its own ray (NaN
+/// elsewhere): the same function on the same inputs as in `brute`, hence the same t.
+#[inline(never)]
+fn refined_t_rays8(
+    bits: u32,
+    org: &[[f32; 8]; 3],
+    dir: &[[f32; 8]; 3],
+    tri: &LeafTri,
+    lo: &[f32; 8],
+    hi: &[f32; 8],
+) -> [f32; 8] {
+    let p = [
+        [tri.p[0][0], tri.p[0][1], tri.p[0][2]],
+        [tri.p[1][0], tri.p[1][1], tri.p[1][2]],
+        [tri.p[2][0], tri.p[2][1], tri.p[2][2]],
+    ];
+    let mut t = [f32::NAN; 8];
+    let mut rest = bits & 0xff;
+    while rest != 0 {
+        let lane = rest.trailing_zeros() as usize & 7;
+        rest &= rest - 1;
+        let f = |a: &[[f32; 8]; 3]| {
+            [
+                f64::from(a[0][lane]),
+                f64::from(a[1][lane]),
+                f64::from(a[2][lane]),
+            ]
+        };
+        t[lane] = refined_t64(f(org), f(dir), &p, lo[lane], hi[lane]);
+    }
+    t
 }
 
 /// U, V, W in f64, rounded to f32, for the lanes of `zero` (the layer's fallback when one
@@ -149,6 +187,8 @@ impl LeafTest for Watertight {
             idx: [ikx, iky, ipick(0, 1, 2)],
             org: [okx, oky, pick(ox, oy, oz)],
             shear: [dkx / dkz, dky / dkz, s.splat_f8(1.0) / dkz],
+            org1: r.org,
+            dir1: r.dir,
         }
     }
 
@@ -198,11 +238,26 @@ impl LeafTest for Watertight {
             return Hit8::miss(inside, zero);
         }
         let det = u + v + w;
-        let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
+        let (lo, hi) = window8(s, [sz * a_z, sz * b_z, sz * c_z]);
+        let cand = inside & det.ne(zero) & hi.ge(tmin) & lo.le(tmax);
+        let bits = cand.bitmask();
+        if bits == 0 {
+            return Hit8::miss(cand, zero);
+        }
+        let [ox1, oy1, oz1] = r.org1;
+        let [dx1, dy1, dz1] = r.dir1;
+        let t = refined_t_rays8(
+            bits,
+            &[ox1.to_array(), oy1.to_array(), oz1.to_array()],
+            &[dx1.to_array(), dy1.to_array(), dz1.to_array()],
+            tri,
+            &lo.to_array(),
+            &hi.to_array(),
+        );
+        let t = s.load_f8(&t);
         let rcp = s.splat_f8(1.0) / det;
-        let t = tt * rcp;
         Hit8 {
-            mask: inside & det.ne(zero) & t.ge(tmin) & t.le(tmax),
+            mask: cand & t.ge(tmin) & t.le(tmax),
             t,
             u: v * rcp,
             v: w * rcp,

@@ -18,8 +18,9 @@
 //! test runs at the end.
 //!
 //! Hit rules (contract §2): t in the closed `[tmin, tmax]`, no culling, a zero determinant
-//! never hits. The interval test is done on the *final* t (`T · (1/det)`), not on `T`
-//! against `det·tmin`, so that a reported t always lies inside the ray's interval.
+//! never hits. The interval test is done on the *final* t (Möller–Trumbore's `T · (1/det)`,
+//! the watertight test's [`plane_t`]), not on `T` against `det·tmin`, so that a reported t
+//! always lies inside the ray's interval.
 //! `tmin > tmax` is empty; [`PreparedRay::is_empty`] lets callers skip such rays, and the
 //! tests themselves never hit for them unless rounding collapses the interval (callers skip).
 //!
@@ -33,7 +34,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::Watertight;
+pub use watertight::{plane_t, refined_t, refined_t64, window1, window8, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};
@@ -114,6 +115,9 @@ pub struct PreparedRay8<S: Simd> {
     pub k: [usize; 3],
     /// Watertight shear (see [`PreparedRay::shear`]).
     pub shear: [S::F8; 3],
+    /// The ray's origin and direction in f64 (exactly its f32 values), for the watertight
+    /// t of the lanes that pass the edge test ([`refined_t`]).
+    pub ray64: ([f64; 3], [f64; 3]),
 }
 
 impl<S: Simd> Clone for PreparedRay8<S> {
@@ -138,6 +142,18 @@ impl<S: Simd> PreparedRay8<S> {
             tmin: s.splat_f8(r.tmin),
             k: r.k,
             shear: v(r.shear),
+            ray64: (
+                [
+                    f64::from(r.org[0]),
+                    f64::from(r.org[1]),
+                    f64::from(r.org[2]),
+                ],
+                [
+                    f64::from(r.dir[0]),
+                    f64::from(r.dir[1]),
+                    f64::from(r.dir[2]),
+                ],
+            ),
         }
     }
 }
