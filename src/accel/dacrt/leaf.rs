@@ -103,10 +103,10 @@ pub struct WtLanes<S: Simd> {
     org: [S::F8; 3],
     /// Shear `d[kx]/d[kz], d[ky]/d[kz], 1/d[kz]`.
     shear: [S::F8; 3],
-    /// Origins, unpermuted, for `refined_t`.
-    org1: [S::F8; 3],
-    /// Directions, unpermuted, for `refined_t`.
-    dir1: [S::F8; 3],
+    /// Origins and directions, unpermuted, per lane, for `refined_t`: stored as arrays,
+    /// not vectors, so that they wait in memory for the rare refinement instead of
+    /// taking registers from the loop over a block's triangles.
+    ray1: [[[f32; 8]; 3]; 2],
 }
 
 /// The layer's `refined_t` for the lanes of `bits`, each with its own ray (NaN
@@ -114,8 +114,7 @@ pub struct WtLanes<S: Simd> {
 #[inline(never)]
 fn refined_t_rays8(
     bits: u32,
-    org: &[[f32; 8]; 3],
-    dir: &[[f32; 8]; 3],
+    ray: &[[[f32; 8]; 3]; 2],
     tri: &LeafTri,
     lo: &[f32; 8],
     hi: &[f32; 8],
@@ -137,7 +136,7 @@ fn refined_t_rays8(
                 f64::from(a[2][lane]),
             ]
         };
-        t[lane] = refined_t64(f(org), f(dir), &p, lo[lane], hi[lane]);
+        t[lane] = refined_t64(f(&ray[0]), f(&ray[1]), &p, lo[lane], hi[lane]);
     }
     t
 }
@@ -187,8 +186,18 @@ impl LeafTest for Watertight {
             idx: [ikx, iky, ipick(0, 1, 2)],
             org: [okx, oky, pick(ox, oy, oz)],
             shear: [dkx / dkz, dky / dkz, s.splat_f8(1.0) / dkz],
-            org1: r.org,
-            dir1: r.dir,
+            ray1: [
+                [
+                    r.org[0].to_array(),
+                    r.org[1].to_array(),
+                    r.org[2].to_array(),
+                ],
+                [
+                    r.dir[0].to_array(),
+                    r.dir[1].to_array(),
+                    r.dir[2].to_array(),
+                ],
+            ],
         }
     }
 
@@ -244,16 +253,7 @@ impl LeafTest for Watertight {
         if bits == 0 {
             return Hit8::miss(cand, zero);
         }
-        let [ox1, oy1, oz1] = r.org1;
-        let [dx1, dy1, dz1] = r.dir1;
-        let t = refined_t_rays8(
-            bits,
-            &[ox1.to_array(), oy1.to_array(), oz1.to_array()],
-            &[dx1.to_array(), dy1.to_array(), dz1.to_array()],
-            tri,
-            &lo.to_array(),
-            &hi.to_array(),
-        );
+        let t = refined_t_rays8(bits, &r.ray1, tri, &lo.to_array(), &hi.to_array());
         let t = s.load_f8(&t);
         let rcp = s.splat_f8(1.0) / det;
         Hit8 {

@@ -115,9 +115,9 @@ pub struct PreparedRay8<S: Simd> {
     pub k: [usize; 3],
     /// Watertight shear (see [`PreparedRay::shear`]).
     pub shear: [S::F8; 3],
-    /// The ray's origin and direction in f64 (exactly its f32 values), for the watertight
-    /// t of the lanes that pass the edge test ([`refined_t`]).
-    pub ray64: ([f64; 3], [f64; 3]),
+    /// The ray's origin and direction, for the watertight t of the lanes whose depth
+    /// window meets the interval ([`refined_t`]).
+    pub ray1: [[f32; 3]; 2],
 }
 
 impl<S: Simd> Clone for PreparedRay8<S> {
@@ -142,18 +142,7 @@ impl<S: Simd> PreparedRay8<S> {
             tmin: s.splat_f8(r.tmin),
             k: r.k,
             shear: v(r.shear),
-            ray64: (
-                [
-                    f64::from(r.org[0]),
-                    f64::from(r.org[1]),
-                    f64::from(r.org[2]),
-                ],
-                [
-                    f64::from(r.dir[0]),
-                    f64::from(r.dir[1]),
-                    f64::from(r.dir[2]),
-                ],
-            ),
+            ray1: [r.org, r.dir],
         }
     }
 }

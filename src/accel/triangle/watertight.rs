@@ -154,11 +154,13 @@ pub fn window1(z: [f32; 3]) -> (f32, f32) {
 #[inline(never)]
 fn refined_t8(
     bits: u32,
-    ray: &([f64; 3], [f64; 3]),
+    ray: &[[f32; 3]; 2],
     p: &[[[f32; 8]; 3]; 3],
     lo: &[f32; 8],
     hi: &[f32; 8],
 ) -> [f32; 8] {
+    let f = |a: [f32; 3]| [f64::from(a[0]), f64::from(a[1]), f64::from(a[2])];
+    let ray = (f(ray[0]), f(ray[1]));
     let mut t = [f32::NAN; 8];
     let mut rest = bits & 0xff;
     while rest != 0 {
@@ -305,7 +307,7 @@ impl TriTest for Watertight {
         if bits == 0 {
             return (cand, zero, zero, zero);
         }
-        let t = refined_t8(bits, &r.ray64, &tri.p, &lo.to_array(), &hi.to_array());
+        let t = refined_t8(bits, &r.ray1, &tri.p, &lo.to_array(), &hi.to_array());
         let t = s.load_f8(&t);
         let rcp = s.splat_f8(1.0) / det;
         let hit = cand & t.ge(r.tmin) & t.le(tmax);
