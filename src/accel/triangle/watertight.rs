@@ -126,7 +126,11 @@ const WIDEN: f32 = 1.0 / 2_097_152.0;
 
 /// The depth window `[lo, hi]` of 8 lanes: the smallest and largest of the sheared vertex
 /// depths `z = [z0, z1, z2]` (the t at which the ray reaches each vertex's coordinate on
-/// its dominant axis), each widened by 2^-21 of itself. The exact t of a hit lies between
+/// its dominant axis), extended by their spread on each side and widened by 2^-21 of
+/// themselves. The spread is for hits that the f32 edge test accepts within its rounding
+/// of an edge although the exact line passes just outside: their plane crossing lies just
+/// outside the depth range (by a fraction of the range that grows as the view grazes; a
+/// tenth was seen), and the clamp must not move it. The exact t of a hit lies between
 /// the vertices' depths (the hit point's coordinate lies between theirs), so the window
 /// always holds it, whatever the triangle's shape or the ray's angle: a candidate whose
 /// window misses `[tmin, tmax]` is a miss without computing its t, and clamping the
@@ -137,7 +141,8 @@ pub fn window8<S: Simd>(s: S, z: [S::F8; 3]) -> (S::F8, S::F8) {
     let [z0, z1, z2] = z;
     let (zl, zh) = (z0.min(z1).min(z2), z0.max(z1).max(z2));
     let k = s.splat_f8(WIDEN);
-    (zl - zl.abs() * k, zh + zh.abs() * k)
+    let width = zh - zl;
+    ((zl - width) - zl.abs() * k, (zh + width) + zh.abs() * k)
 }
 
 /// [`window8`] for one lane, with the same operations in the same order (x86 min/max).
@@ -146,7 +151,11 @@ pub fn window1(z: [f32; 3]) -> (f32, f32) {
     let [z0, z1, z2] = z;
     let zl = min_x86(min_x86(z0, z1), z2);
     let zh = max_x86(max_x86(z0, z1), z2);
-    (zl - zl.abs() * WIDEN, zh + zh.abs() * WIDEN)
+    let width = zh - zl;
+    (
+        (zl - width) - zl.abs() * WIDEN,
+        (zh + width) + zh.abs() * WIDEN,
+    )
 }
 
 /// [`refined_t`] for the lanes of `bits` of an 8-wide pack (NaN in the others); cold
