@@ -1,18 +1,35 @@
-# Builds rayd with the Embree peer and runs it on a slim Debian.
+# rayd serve on a slim Debian, with the Embree peer. Build: docker build -t rayd .
+# Run: docker run -p 8080:8080 -v rayd-data:/data rayd
 FROM rust:1-bookworm AS build
-RUN apt-get update && apt-get install -y --no-install-recommends libembree-dev && rm -rf /var/lib/apt/lists/*
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends libembree-dev \
+ && rm -rf /var/lib/apt/lists/*
 WORKDIR /src
 COPY Cargo.toml Cargo.lock ./
 COPY src ./src
+COPY proto ./proto
 COPY tests ./tests
 COPY scenes ./scenes
-RUN cargo build --release --features embree
+RUN cargo build --release --features embree --bin rayd
 
 FROM debian:bookworm-slim
-RUN apt-get update && apt-get install -y --no-install-recommends libembree3-3 && rm -rf /var/lib/apt/lists/*
+RUN apt-get update \
+ && apt-get install -y --no-install-recommends libembree3-3 \
+ && rm -rf /var/lib/apt/lists/* \
+ && groupadd --system --gid 10001 rayd \
+ && useradd --system --uid 10001 --gid rayd --home-dir /data --shell /usr/sbin/nologin rayd \
+ && mkdir -p /data \
+ && chown rayd:rayd /data
 COPY --from=build /src/target/release/rayd /usr/local/bin/rayd
 COPY scenes /usr/share/rayd/scenes
+USER rayd
 WORKDIR /data
-# Until the service lands, the default run renders a sample scene into /data.
+VOLUME /data
+EXPOSE 8080
+# SIGTERM starts the graceful shutdown (--grace seconds, default 5); give `docker stop`
+# more than that (its default of 10 s does).
+STOPSIGNAL SIGTERM
+HEALTHCHECK --interval=10s --timeout=3s --start-period=10s --retries=3 \
+  CMD ["rayd", "healthcheck"]
 ENTRYPOINT ["rayd"]
-CMD ["render", "/usr/share/rayd/scenes/Fox.glb", "-o", "/data/fox.png"]
+CMD ["serve", "--addr", "0.0.0.0:8080", "--data-dir", "/data"]

@@ -31,6 +31,7 @@ fn main() {
     let options = BuildOptions {
         quality,
         threads,
+        dacrt: rayd::accel::dacrt::DacrtTuning::from_env(),
         ..BuildOptions::default()
     };
     let pool = rayon::ThreadPoolBuilder::new()

@@ -55,6 +55,7 @@ fn main() {
             _ => Precision::Watertight,
         },
         threads,
+        dacrt: rayd::accel::dacrt::DacrtTuning::from_env(),
     };
     let kinds: Vec<AccelKind> = args[3]
         .split(',')

@@ -13,10 +13,15 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod accel;
+pub mod app;
 pub mod bench;
 pub mod cli;
 pub mod formats;
 pub mod geometry;
+pub mod jobs;
+pub mod names;
 pub mod render;
 pub mod scene;
+pub mod service;
 pub mod simd;
+pub mod store;

@@ -230,6 +230,7 @@ fn make(
         quality,
         precision: p,
         threads: 0,
+        ..BuildOptions::default()
     };
     build(kind, tris, &o).expect("builds")
 }
@@ -685,6 +686,7 @@ fn refit_timings() {
                     quality: BuildQuality::Sah,
                     precision: Precision::Watertight,
                     threads,
+                    ..BuildOptions::default()
                 };
                 let mut builds = Vec::new();
                 let mut core = None;

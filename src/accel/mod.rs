@@ -17,10 +17,15 @@ pub mod triangle;
 
 use crate::geometry::{Hit, Ray, Triangle};
 
-/// The accelerators of the contract (§3).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+/// The accelerators of the contract (§3). Their names are the serde names below, used by
+/// the command line, JSON and query strings alike ([`crate::names`]).
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum AccelKind {
     /// The one expected to be fastest for the job.
+    #[default]
     Auto,
     /// Every ray against every triangle: the reference.
     Brute,
@@ -53,21 +58,12 @@ impl AccelKind {
 
     /// The contract's name.
     pub fn name(self) -> &'static str {
-        match self {
-            AccelKind::Auto => "auto",
-            AccelKind::Brute => "brute",
-            AccelKind::Mbvh8 => "mbvh8",
-            AccelKind::Mbvh4 => "mbvh4",
-            AccelKind::Bvh2 => "bvh2",
-            AccelKind::Embree => "embree",
-            AccelKind::Dacrt => "dacrt",
-            AccelKind::DacrtSampled => "dacrt-sampled",
-        }
+        crate::names::Spelled::name(self)
     }
 
     /// Parses the contract's name.
     pub fn parse(s: &str) -> Option<AccelKind> {
-        AccelKind::ALL.into_iter().find(|k| k.name() == s)
+        crate::names::Spelled::parse_name(s).ok()
     }
 
     /// Whether this build of rayd has the accelerator.
@@ -85,8 +81,13 @@ impl AccelKind {
     }
 }
 
+crate::spelled!(AccelKind, AccelKind::ALL);
+
 /// Which hit a query wants.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Query {
     /// The smallest t; among equal t, the lowest triangle id.
     #[default]
@@ -98,15 +99,17 @@ pub enum Query {
 impl Query {
     /// The contract's name.
     pub fn name(self) -> &'static str {
-        match self {
-            Query::Closest => "closest",
-            Query::Any => "any",
-        }
+        crate::names::Spelled::name(self)
     }
 }
 
+crate::spelled!(Query, [Query::Closest, Query::Any]);
+
 /// Which ray/triangle test the cores use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum Precision {
     /// Möller–Trumbore: fewer operations, may miss or double-hit along shared edges.
     Fast,
@@ -118,15 +121,17 @@ pub enum Precision {
 impl Precision {
     /// The contract's name.
     pub fn name(self) -> &'static str {
-        match self {
-            Precision::Fast => "fast",
-            Precision::Watertight => "watertight",
-        }
+        crate::names::Spelled::name(self)
     }
 }
 
+crate::spelled!(Precision, [Precision::Fast, Precision::Watertight]);
+
 /// Build quality of the BVH accelerators (Embree: LOW, MEDIUM, HIGH).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum BuildQuality {
     /// Quickest build.
     Fast,
@@ -140,16 +145,17 @@ pub enum BuildQuality {
 impl BuildQuality {
     /// The contract's name.
     pub fn name(self) -> &'static str {
-        match self {
-            BuildQuality::Fast => "fast",
-            BuildQuality::Sah => "sah",
-            BuildQuality::Sbvh => "sbvh",
-        }
+        crate::names::Spelled::name(self)
     }
 }
 
+crate::spelled!(
+    BuildQuality,
+    [BuildQuality::Fast, BuildQuality::Sah, BuildQuality::Sbvh]
+);
+
 /// How to build an accelerator.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct BuildOptions {
     /// Build quality (BVH accelerators and Embree).
     pub quality: BuildQuality,
@@ -158,6 +164,10 @@ pub struct BuildOptions {
     /// Threads the accelerator may use; 0 means all cores. Cores that use rayon take the
     /// pool they are called in; Embree needs the number when its device is made.
     pub threads: usize,
+    /// Settings of the two DACRT cores. Explicit rather than read from the environment
+    /// at build time, so that everything that changes a structure's answers or speed is in
+    /// the options (and in the service cache's key).
+    pub dacrt: dacrt::DacrtTuning,
 }
 
 /// Errors of building an accelerator.
@@ -239,6 +249,16 @@ pub trait Intersector: Send + Sync {
         Err(AccelError::refit(self.name(), bvh::RefitError::Unsupported))
     }
 
+    /// A refitted copy: what [`Intersector::refit`] would make of this structure, as a new
+    /// accelerator, leaving this one untouched. A structure shared by concurrent traces
+    /// (the service's cache) cannot be refitted in place while old-version traces run on
+    /// it; a copy of the nodes costs one memcpy, far less than a build. `Err` as `refit`,
+    /// for cores whose precompute is itself the build (DACRT, `brute`) or that cannot copy.
+    fn refit_copy(&self, triangles: &[Triangle]) -> Result<Box<dyn Intersector>, AccelError> {
+        let _ = triangles;
+        Err(AccelError::refit(self.name(), bvh::RefitError::Unsupported))
+    }
+
     /// Traversal steps and triangle tests per `closest` ray over `rays` (Áfra 2013,
     /// Table 4), for cores whose traversal counts them; run on the calling thread, untimed,
     /// so that `rayd bench` can print them beside the rates. `None` for the others.
@@ -267,10 +287,17 @@ pub fn build(
         }
         AccelKind::Mbvh4 => Ok(Box::new(mbvh::Mbvh4Core::build(triangles, options))),
         AccelKind::Bvh2 => Ok(Box::new(packet::Bvh2Packet::build(triangles, options))),
-        AccelKind::Dacrt => Ok(Box::new(dacrt::Dacrt::new(triangles, options.precision))),
-        AccelKind::DacrtSampled => Ok(Box::new(dacrt::Dacrt::sampled(
+        AccelKind::Dacrt => Ok(Box::new(dacrt::Dacrt::with_options(
+            "dacrt",
             triangles,
             options.precision,
+            options.dacrt.afra,
+        ))),
+        AccelKind::DacrtSampled => Ok(Box::new(dacrt::Dacrt::with_options(
+            "dacrt-sampled",
+            triangles,
+            options.precision,
+            options.dacrt.nabata,
         ))),
         #[cfg(feature = "embree")]
         AccelKind::Embree => Ok(Box::new(embree::Embree::new(triangles, options)?)),

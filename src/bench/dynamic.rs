@@ -453,6 +453,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                 quality: BuildQuality::Sah,
                 precision: config.precision,
                 threads: all.current_num_threads(),
+                dacrt: crate::accel::dacrt::DacrtTuning::from_env(),
             };
             let maker =
                 all.install(|| accel::build(AccelKind::Mbvh8, &view.triangles, &options))?;
@@ -466,6 +467,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                     quality: config.build,
                     precision: config.precision,
                     threads,
+                    dacrt: crate::accel::dacrt::DacrtTuning::from_env(),
                 };
                 // The first strategy's answers, per set and frame, for the agreement.
                 let mut reference: Vec<Vec<Vec<Hit>>> = Vec::new();

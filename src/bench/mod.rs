@@ -375,6 +375,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 quality: config.build,
                 precision: config.precision,
                 threads: all.current_num_threads(),
+                dacrt: crate::accel::dacrt::DacrtTuning::from_env(),
             };
             let ref_accel =
                 all.install(|| crate::accel::build(reference, &view.triangles, &options))?;

@@ -2,7 +2,7 @@
 //! every command's result does; the table goes to stderr (or to stdout with
 //! `--format table`, CSV with `--format csv`).
 
-use super::{parse_accel, parse_build, parse_precision, CameraArgs, CliError, PathArg};
+use super::{CameraArgs, CliError, PathArg};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::bench::{BenchConfig, DynamicConfig, Motion, SetKind, ViewKind};
 
@@ -12,7 +12,7 @@ pub(super) struct BenchArgs {
     #[arg(required = true)]
     scenes: Vec<PathArg>,
     /// Accelerators to measure, comma-separated.
-    #[arg(long, value_delimiter = ',', default_value = "auto", value_parser = parse_accel)]
+    #[arg(long, value_delimiter = ',', default_value = "auto", value_enum)]
     accel: Vec<AccelKind>,
     /// Ray sets: primary, ao, diffuse1, diffuse2, diffuse8 (comma-separated).
     #[arg(long, value_delimiter = ',', default_value = "primary,ao,diffuse1,diffuse2,diffuse8", value_parser = parse_set)]
@@ -38,13 +38,13 @@ pub(super) struct BenchArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Build quality: fast, sah, sbvh (embree: LOW, MEDIUM, HIGH).
-    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    #[arg(long, default_value = "sah", value_enum)]
     build: BuildQuality,
     /// Ray/triangle test: fast or watertight.
-    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    #[arg(long, default_value = "watertight", value_enum)]
     precision: Precision,
     /// Reference for the agreement check (auto: brute on small scenes, embree on large ones).
-    #[arg(long, default_value = "auto", value_parser = parse_accel)]
+    #[arg(long, default_value = "auto", value_enum)]
     reference: AccelKind,
     /// Animation time in seconds.
     #[arg(long)]

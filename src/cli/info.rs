@@ -2,7 +2,7 @@
 
 use serde_json::json;
 
-use super::{parse_accel, parse_build, parse_precision, CliError, PathArg};
+use super::{CliError, PathArg};
 use crate::accel::{AccelKind, BuildQuality, Precision};
 
 #[derive(clap::Args, Debug)]
@@ -10,13 +10,13 @@ pub(super) struct InfoArgs {
     /// Scene file (.glb, .gltf or .tri).
     scene: PathArg,
     /// Also build this accelerator and report its build time, memory and statistics.
-    #[arg(long, value_parser = parse_accel)]
+    #[arg(long, value_enum)]
     accel: Option<AccelKind>,
     /// Build quality of the accelerator: fast, sah, sbvh.
-    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    #[arg(long, default_value = "sah", value_enum)]
     build: BuildQuality,
     /// Ray/triangle test of the accelerator: fast or watertight.
-    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    #[arg(long, default_value = "watertight", value_enum)]
     precision: Precision,
     /// Threads for the build; 0 or absent: all cores.
     #[arg(long, default_value_t = 0)]
@@ -27,22 +27,23 @@ pub(super) struct InfoArgs {
 }
 
 pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
-    let scene = crate::formats::load_scene(&a.scene, &super::load_options(a.time)?)?;
-    let bounds = scene.bounds().map(|b| json!({"min": b.min, "max": b.max}));
-    let animations: Vec<_> = scene
-        .animations
-        .iter()
-        .map(|an| json!({"name": an.name, "duration": an.duration}))
-        .collect();
+    // With shading data, so that `bytes_by_part` tells what a render would hold; `bytes`
+    // stays the memory held for tracing.
+    let scene = crate::formats::load_scene_with(
+        &a.scene,
+        &super::load_options(a.time)?,
+        crate::formats::Parts::Shading,
+    )?;
     let mut bytes = scene.bytes();
-    let mut out = json!({
-        "triangles": scene.triangles.len(),
-        "bounds": bounds,
-        "meshes": scene.meshes,
-        "animations": animations,
-        "cameras": scene.cameras.len(),
-        "simd": crate::simd::selected().name(),
+    let parts = scene.bytes_by_part();
+    let mut by_part = json!({
+        "positions": parts.positions,
+        "attributes": parts.attributes,
+        "textures": parts.textures,
+        "animation": parts.animation,
     });
+    // The contract's fields, as the service's scene summaries carry them.
+    let mut out = crate::app::scene_info(&scene);
     if let Some(kind) = a.accel {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(a.threads)
@@ -58,11 +59,13 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
             quality: a.build,
             precision: a.precision,
             threads: pool.current_num_threads(),
+            dacrt: crate::accel::dacrt::DacrtTuning::from_env(),
         };
         let t0 = std::time::Instant::now();
         let accel = pool.install(|| crate::accel::build(kind, &scene.triangles, &options))?;
         let build_seconds = t0.elapsed().as_secs_f64();
         bytes += accel.bytes();
+        by_part["structures"] = json!(accel.bytes());
         out["accel"] = json!({
             "name": accel.name(),
             "build": a.build.name(),
@@ -73,5 +76,6 @@ pub(super) fn run(a: InfoArgs) -> Result<serde_json::Value, CliError> {
         });
     }
     out["bytes"] = json!(bytes);
+    out["bytes_by_part"] = by_part;
     Ok(out)
 }

@@ -1,11 +1,14 @@
-//! The command line (contract §4): `info`, `trace`, `render` and `bench`.
+//! The command line (contract §4): `info`, `trace`, `render`, `bench`, `serve`,
+//! `healthcheck` and `backup`.
 //!
 //! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
 //! stderr and exits non-zero. Parsing happens here; the work happens in the library.
 
+mod backup;
 mod bench;
 mod info;
 mod render;
+mod serve;
 mod trace;
 
 use std::path::PathBuf;
@@ -13,9 +16,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use crate::accel::{AccelKind, BuildQuality, Precision, Query};
-use crate::formats::HitFormat;
-use crate::render::Integrator;
+use crate::accel::{AccelKind, BuildQuality, Precision};
 
 /// Errors of the command line: every layer's error, converted at this edge.
 #[derive(Debug, thiserror::Error)]
@@ -54,9 +55,18 @@ pub enum CliError {
     /// An option's value is unusable in a way the parser cannot see.
     #[error("{0}")]
     Usage(String),
+    /// The HTTP service could not start or failed.
+    #[error(transparent)]
+    Service(#[from] crate::service::ServiceError),
     /// A thread pool could not be made.
     #[error("cannot start the thread pool: {0}")]
     Pool(#[from] rayon::ThreadPoolBuildError),
+    /// A job failed.
+    #[error(transparent)]
+    Job(#[from] crate::jobs::JobError),
+    /// The store failed.
+    #[error(transparent)]
+    Store(#[from] crate::store::StoreError),
 }
 
 #[derive(Parser, Debug)]
@@ -80,6 +90,12 @@ enum Command {
     Render(render::RenderArgs),
     /// Measure the accelerators on identical ray sets.
     Bench(bench::BenchArgs),
+    /// Run the HTTP service.
+    Serve(crate::service::ServeArgs),
+    /// Probe a running service; exit 0 when it answers 200.
+    Healthcheck(serve::HealthcheckArgs),
+    /// Copy a data directory (live or not) to a new directory that opens as a store.
+    Backup(backup::BackupArgs),
 }
 
 /// Runs the command line and turns the outcome into an exit code.
@@ -92,6 +108,9 @@ pub fn main() -> ExitCode {
             Command::Trace(a) => trace::run(a),
             Command::Render(a) => render::run(a),
             Command::Bench(a) => bench::run(a),
+            Command::Serve(a) => serve::run(a),
+            Command::Healthcheck(a) => serve::healthcheck(a),
+            Command::Backup(a) => backup::run(a),
         });
     match result {
         Ok(json) => {
@@ -111,14 +130,14 @@ pub fn main() -> ExitCode {
 /// Options every tracing command shares: which core, how it is built, how many threads.
 #[derive(clap::Args, Debug, Clone)]
 struct CoreArgs {
-    /// Accelerator: auto, brute, mbvh8, mbvh4, bvh2, dacrt, dacrt-sampled, embree.
-    #[arg(long, default_value = "auto", value_parser = parse_accel)]
+    /// Accelerator.
+    #[arg(long, value_enum, default_value_t = AccelKind::Auto)]
     accel: AccelKind,
-    /// Build quality of the BVH accelerators: fast, sah, sbvh.
-    #[arg(long, default_value = "sah", value_parser = parse_build)]
+    /// Build quality of the BVH accelerators.
+    #[arg(long, value_enum, default_value_t = BuildQuality::Sah)]
     build: BuildQuality,
     /// Ray/triangle test: fast (Möller–Trumbore) or watertight.
-    #[arg(long, default_value = "watertight", value_parser = parse_precision)]
+    #[arg(long, value_enum, default_value_t = Precision::Watertight)]
     precision: Precision,
     /// Threads for every phase; 0 or absent: all cores.
     #[arg(long, default_value_t = 0)]
@@ -129,31 +148,22 @@ struct CoreArgs {
 }
 
 impl CoreArgs {
-    /// A thread pool of exactly the requested size; every phase runs inside it.
-    fn pool(&self) -> Result<rayon::ThreadPool, CliError> {
-        Ok(rayon::ThreadPoolBuilder::new()
-            .num_threads(self.threads)
-            .build()?)
-    }
-
-    /// Build options for a pool of `threads` threads.
-    fn build_options(&self, threads: usize) -> crate::accel::BuildOptions {
-        crate::accel::BuildOptions {
-            quality: self.build,
-            precision: self.precision,
-            threads,
-        }
+    /// The engine of one command: a pool of the requested size, the environment's DACRT
+    /// settings, and limits wide enough for anything a file can hold.
+    fn engine(&self) -> Result<crate::jobs::Engine, CliError> {
+        Ok(crate::jobs::Engine::new(crate::jobs::EngineOptions {
+            threads: self.threads,
+            tuning: crate::accel::dacrt::DacrtTuning::from_env(),
+            limits: crate::jobs::Limits {
+                max_rays: usize::MAX,
+                ..crate::jobs::Limits::default()
+            },
+            ..crate::jobs::EngineOptions::default()
+        })?)
     }
 
     fn load_options(&self) -> Result<crate::formats::LoadOptions, CliError> {
-        if let Some(t) = self.time {
-            if !t.is_finite() {
-                return Err(CliError::Usage(format!(
-                    "--time {t} is not a finite number"
-                )));
-            }
-        }
-        Ok(crate::formats::LoadOptions { time: self.time })
+        load_options(self.time)
     }
 }
 
@@ -203,48 +213,6 @@ impl CameraArgs {
             _ => CameraChoice::Auto,
         }
     }
-}
-
-fn parse_accel(s: &str) -> Result<AccelKind, String> {
-    AccelKind::parse(s).ok_or_else(|| {
-        let names: Vec<_> = AccelKind::ALL.iter().map(|k| k.name()).collect();
-        format!("unknown accelerator '{s}' (one of: {})", names.join(", "))
-    })
-}
-
-fn parse_build(s: &str) -> Result<BuildQuality, String> {
-    match s {
-        "fast" => Ok(BuildQuality::Fast),
-        "sah" => Ok(BuildQuality::Sah),
-        "sbvh" => Ok(BuildQuality::Sbvh),
-        _ => Err(format!("unknown build quality '{s}' (fast, sah or sbvh)")),
-    }
-}
-
-fn parse_precision(s: &str) -> Result<Precision, String> {
-    match s {
-        "fast" => Ok(Precision::Fast),
-        "watertight" => Ok(Precision::Watertight),
-        _ => Err(format!("unknown precision '{s}' (fast or watertight)")),
-    }
-}
-
-fn parse_query(s: &str) -> Result<Query, String> {
-    match s {
-        "closest" => Ok(Query::Closest),
-        "any" => Ok(Query::Any),
-        _ => Err(format!("unknown query '{s}' (closest or any)")),
-    }
-}
-
-fn parse_hit(s: &str) -> Result<HitFormat, String> {
-    HitFormat::parse(s)
-        .ok_or_else(|| format!("unknown hit format '{s}' (t_prim_uv, t_prim, t or occluded)"))
-}
-
-fn parse_integrator(s: &str) -> Result<Integrator, String> {
-    Integrator::parse(s)
-        .ok_or_else(|| format!("unknown integrator '{s}' (primary, normals, ao or path)"))
 }
 
 fn parse_vec3(s: &str) -> Result<[f64; 3], String> {

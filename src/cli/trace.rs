@@ -1,14 +1,15 @@
-//! `rayd trace SCENE --rays IN --out OUT`: one batch, timed as the contract defines.
+//! `rayd trace SCENE --rays IN --out OUT`: one batch, timed as the contract defines, run
+//! by the same engine as the service's trace route.
 
-use std::time::Instant;
+use std::io::Read;
+use std::sync::Arc;
 
-use serde_json::json;
-
-use super::{parse_hit, parse_query, CliError, CoreArgs, PathArg};
-use crate::accel::auto::Job;
+use super::{CliError, CoreArgs, PathArg};
 use crate::accel::Query;
-use crate::formats::{binary, HitFormat};
-use crate::geometry::{Hit, Ray};
+use crate::formats::binary::Ray1Sink;
+use crate::formats::{FormatError, HitFormat};
+use crate::geometry::Ray;
+use crate::jobs::{trace, Geometry, GeometryKey, InvalidPolicy, JobError, TraceRequest};
 
 #[derive(clap::Args, Debug)]
 pub(super) struct TraceArgs {
@@ -20,79 +21,66 @@ pub(super) struct TraceArgs {
     /// HIT1 output.
     #[arg(long)]
     out: PathArg,
-    /// closest or any.
-    #[arg(long, default_value = "closest", value_parser = parse_query)]
+    /// Which hit a ray reports.
+    #[arg(long, value_enum, default_value_t = Query::Closest)]
     query: Query,
-    /// Hit fields to write: t_prim_uv, t_prim, t or occluded.
-    #[arg(long, default_value = "t_prim_uv", value_parser = parse_hit)]
+    /// Hit fields to write.
+    #[arg(long, value_enum, default_value_t = HitFormat::TPrimUv)]
     hit: HitFormat,
-    /// What to do with invalid rays: error (refuse the batch) or miss.
-    #[arg(long, default_value = "error", value_parser = ["error", "miss"])]
-    invalid: String,
+    /// What to do with invalid rays: refuse the batch, or answer them as misses.
+    #[arg(long, value_enum, default_value_t = InvalidPolicy::Error)]
+    invalid: InvalidPolicy,
     #[command(flatten)]
     core: CoreArgs,
 }
 
+/// Reads a RAY1 file straight into ray memory, one chunk at a time (no second copy).
+pub(super) fn read_ray_file(path: &std::path::Path) -> Result<Vec<Ray>, CliError> {
+    let io = |source| FormatError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    let mut sink = Ray1Sink::new(usize::MAX, Some(len));
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = file.read(&mut buf).map_err(io)?;
+        if n == 0 {
+            break;
+        }
+        sink.push(&buf[..n]).map_err(FormatError::from)?;
+    }
+    Ok(sink.finish().map_err(FormatError::from)?)
+}
+
 pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
     let scene = crate::formats::load_scene(&a.scene, &a.core.load_options()?)?;
-    let mut rays = binary::read_rays(&crate::formats::read_file(&a.rays)?)?;
-    let replace = a.invalid == "miss";
-    if let Some(bad) = Ray::validate_batch(&mut rays, replace) {
-        if !replace {
-            return Err(CliError::InvalidRays {
-                path: a.rays.display().to_string(),
-                detail: bad,
-            });
-        }
-    }
-    let pool = a.core.pool()?;
-    let threads = pool.current_num_threads();
-    let options = a.core.build_options(threads);
-    let kind = a.core.accel.resolve(&Job::batch(
-        rays.len(),
-        scene.triangles.len(),
-        threads,
-        options.quality,
-    ));
-    let (accel, build_seconds, body, trace_seconds) = pool.install(|| {
-        let t0 = Instant::now();
-        let accel = crate::accel::build(kind, &scene.triangles, &options)?;
-        let build_seconds = t0.elapsed().as_secs_f64();
-        let t1 = Instant::now();
-        // Only the fields asked for are computed: `occluded` needs no hit records at all.
-        let body = if a.hit == HitFormat::Occluded {
-            let mut flags = vec![0u8; rays.len()];
-            accel.occluded(&rays, &mut flags);
-            let trace_seconds = t1.elapsed().as_secs_f64();
-            (binary::write_occluded(&flags), trace_seconds)
-        } else {
-            let mut hits = vec![Hit::MISS; rays.len()];
-            accel.trace(&rays, a.query, &mut hits);
-            let trace_seconds = t1.elapsed().as_secs_f64();
-            (binary::write_hits(&hits, a.hit), trace_seconds)
-        };
-        Ok::<_, CliError>((accel, build_seconds, body.0, body.1))
+    let mut rays = read_ray_file(&a.rays)?;
+    let invalid = trace::validate(&mut rays, a.invalid).map_err(|e| match e {
+        JobError::InvalidRays(detail) => CliError::InvalidRays {
+            path: a.rays.display().to_string(),
+            detail,
+        },
+        e => e.into(),
     })?;
-    std::fs::write(&a.out, body).map_err(|source| crate::formats::FormatError::Io {
+    let engine = a.core.engine()?;
+    let geometry = Geometry {
+        key: GeometryKey::new(&a.scene.display().to_string(), 1, a.core.time),
+        triangles: Arc::new(scene.triangles),
+    };
+    let request = TraceRequest {
+        query: a.query,
+        hit: a.hit,
+        accel: a.core.accel,
+        build: a.core.build,
+        precision: a.core.precision,
+        invalid: a.invalid,
+    };
+    let (body, report) = engine.trace(&geometry, &rays, &request, invalid, &engine.detached())?;
+    std::fs::write(&a.out, body.as_ref()).map_err(|source| FormatError::Io {
         path: a.out.display().to_string(),
         source,
     })?;
-    let mrays = if trace_seconds > 0.0 {
-        rays.len() as f64 / trace_seconds / 1e6
-    } else {
-        0.0
-    };
-    Ok(json!({
-        "rays": rays.len(),
-        "accel": accel.name(),
-        "threads": threads,
-        "build_seconds": build_seconds,
-        "trace_seconds": trace_seconds,
-        "mrays_per_s": mrays,
-        "query": a.query.name(),
-        "hit": a.hit.name(),
-        "precision": a.core.precision.name(),
-        "build": a.core.build.name(),
-        "simd": crate::simd::selected().name(),
-    }))
+    Ok(serde_json::to_value(report).expect("a report serialises"))
 }

@@ -23,7 +23,10 @@ const _: () = assert!(HIT1_MAGIC == 0x3154_4948);
 const _: () = assert!(TRI1_MAGIC == 0x3149_5254);
 
 /// Which fields a HIT1 record carries.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "snake_case")]
 pub enum HitFormat {
     /// `t: f32, prim: u32, u: f32, v: f32` (16 bytes).
     #[default]
@@ -57,17 +60,12 @@ impl HitFormat {
 
     /// The contract's name.
     pub fn name(self) -> &'static str {
-        match self {
-            HitFormat::TPrimUv => "t_prim_uv",
-            HitFormat::TPrim => "t_prim",
-            HitFormat::T => "t",
-            HitFormat::Occluded => "occluded",
-        }
+        crate::names::Spelled::name(self)
     }
 
     /// Parses the contract's name.
     pub fn parse(s: &str) -> Option<HitFormat> {
-        HitFormat::ALL.into_iter().find(|f| f.name() == s)
+        crate::names::Spelled::parse_name(s).ok()
     }
 
     /// Bytes per record.
@@ -84,6 +82,8 @@ impl HitFormat {
         HitFormat::ALL.into_iter().find(|f| f.code() == code)
     }
 }
+
+crate::spelled!(HitFormat, HitFormat::ALL);
 
 /// What is wrong with a binary body.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -150,6 +150,16 @@ pub enum BinaryError {
         /// Expected body length.
         expected: u128,
     },
+    /// The header's count is over the reader's limit.
+    #[error("{kind}: count {count} at byte 8 exceeds the limit of {limit} records")]
+    TooMany {
+        /// Which file kind was expected.
+        kind: &'static str,
+        /// The count in the header.
+        count: u64,
+        /// The limit.
+        limit: u64,
+    },
     /// A TRI1 coordinate is NaN or infinite.
     #[error("TRI1: triangle {index} has a NaN or infinite coordinate (byte offset {offset})")]
     NonFiniteTriangle {
@@ -176,6 +186,29 @@ fn read_f32(b: &[u8], at: usize) -> f32 {
 /// Checks the header and the exact body length; `record_for` gives the record size of a
 /// format code, or `None` for an unknown one.
 fn parse_header(
+    bytes: &[u8],
+    kind: &'static str,
+    magic: u32,
+    allowed: &'static str,
+    record_for: impl Fn(u16) -> Option<usize>,
+) -> Result<Header, BinaryError> {
+    let h = parse_header_fields(bytes, kind, magic, allowed, &record_for)?;
+    let record = record_for(h.format).expect("checked by parse_header_fields");
+    let expected = (h.count as u128) * (record as u128) + HEADER_BYTES as u128;
+    if bytes.len() as u128 != expected {
+        return Err(BinaryError::WrongLength {
+            kind,
+            len: bytes.len(),
+            count: h.count as u64,
+            record,
+            expected,
+        });
+    }
+    Ok(h)
+}
+
+/// Checks the header's fields (not the body's length) from the first 16 bytes.
+fn parse_header_fields(
     bytes: &[u8],
     kind: &'static str,
     magic: u32,
@@ -218,15 +251,6 @@ fn parse_header(
             record,
         });
     }
-    if expected != bytes.len() as u128 {
-        return Err(BinaryError::WrongLength {
-            kind,
-            len: bytes.len(),
-            count,
-            record,
-            expected,
-        });
-    }
     Ok(Header {
         format,
         count: count as usize,
@@ -245,21 +269,147 @@ fn header(magic: u32, format: u16, count: usize, record: usize) -> Vec<u8> {
 /// Reads a RAY1 body. Validity of the rays themselves is checked separately
 /// ([`Ray::validate_batch`]), since `invalid=miss` answers bad rays instead of refusing them.
 pub fn read_rays(bytes: &[u8]) -> Result<Vec<Ray>, BinaryError> {
-    let h = parse_header(bytes, "RAY1", RAY1_MAGIC, "RAY1 has only format 0", |f| {
-        (f == 0).then_some(32)
-    })?;
-    let body = &bytes[HEADER_BYTES..];
-    let mut rays = Vec::with_capacity(h.count);
-    for rec in body.chunks_exact(32) {
-        let f = |i: usize| read_f32(rec, 4 * i);
-        rays.push(Ray {
-            org: [f(0), f(1), f(2)],
-            tmin: f(3),
-            dir: [f(4), f(5), f(6)],
-            tmax: f(7),
-        });
+    let mut sink = Ray1Sink::new(usize::MAX, Some(bytes.len() as u64));
+    sink.push(bytes)?;
+    sink.finish()
+}
+
+/// A RAY1 body arriving in pieces (a file read in chunks, an HTTP body as it uploads),
+/// written straight into the rays' memory: on little-endian targets a RAY1 record has the
+/// [`Ray`]'s layout, so the bytes are the rays and nothing is decoded or copied twice.
+///
+/// The header is checked as soon as its 16 bytes are in; with a known body length
+/// (`length_hint`, e.g. a file's size or a `Content-Length`) a count that disagrees with it
+/// is refused before anything is allocated, and the rays' memory is allocated once. Without
+/// one, the memory grows with what actually arrives, so a header that lies about its count
+/// cannot make the reader allocate for it.
+pub struct Ray1Sink {
+    limit: usize,
+    hint: Option<u64>,
+    header: [u8; HEADER_BYTES],
+    header_len: usize,
+    count: usize,
+    rays: Vec<Ray>,
+    /// Record bytes received.
+    filled: usize,
+}
+
+impl Ray1Sink {
+    /// A reader that refuses more than `limit` rays.
+    pub fn new(limit: usize, length_hint: Option<u64>) -> Ray1Sink {
+        Ray1Sink {
+            limit,
+            hint: length_hint,
+            header: [0; HEADER_BYTES],
+            header_len: 0,
+            count: 0,
+            rays: Vec::new(),
+            filled: 0,
+        }
     }
-    Ok(rays)
+
+    /// The header's count, once the header is in.
+    pub fn count(&self) -> Option<usize> {
+        (self.header_len == HEADER_BYTES).then_some(self.count)
+    }
+
+    /// Whole rays received so far.
+    pub fn rays_received(&self) -> usize {
+        self.filled / 32
+    }
+
+    fn wrong_length(&self, len: u128) -> BinaryError {
+        BinaryError::WrongLength {
+            kind: "RAY1",
+            len: len.min(usize::MAX as u128) as usize,
+            count: self.count as u64,
+            record: 32,
+            expected: HEADER_BYTES as u128 + 32 * self.count as u128,
+        }
+    }
+
+    /// Takes the next bytes of the body.
+    pub fn push(&mut self, mut chunk: &[u8]) -> Result<(), BinaryError> {
+        if self.header_len < HEADER_BYTES {
+            let take = chunk.len().min(HEADER_BYTES - self.header_len);
+            self.header[self.header_len..self.header_len + take].copy_from_slice(&chunk[..take]);
+            self.header_len += take;
+            chunk = &chunk[take..];
+            if self.header_len < HEADER_BYTES {
+                return Ok(());
+            }
+            self.start()?;
+        }
+        let end = self.filled + chunk.len();
+        if end > 32 * self.count {
+            return Err(self.wrong_length(HEADER_BYTES as u128 + end as u128));
+        }
+        if end > 32 * self.rays.len() {
+            // Growing mode (no length hint): at least double, at most the count.
+            let want = end.div_ceil(32).max(2 * self.rays.len()).min(self.count);
+            self.rays.resize(want, Ray::default());
+        }
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut self.rays);
+        bytes[self.filled..end].copy_from_slice(chunk);
+        self.filled = end;
+        Ok(())
+    }
+
+    /// The header is complete: check it and allocate.
+    fn start(&mut self) -> Result<(), BinaryError> {
+        let h = parse_header_fields(
+            &self.header,
+            "RAY1",
+            RAY1_MAGIC,
+            "RAY1 has only format 0",
+            |f| (f == 0).then_some(32),
+        )?;
+        if h.count as u128 > self.limit as u128 {
+            return Err(BinaryError::TooMany {
+                kind: "RAY1",
+                count: h.count as u64,
+                limit: self.limit as u64,
+            });
+        }
+        self.count = h.count;
+        if let Some(len) = self.hint {
+            if len as u128 != HEADER_BYTES as u128 + 32 * self.count as u128 {
+                return Err(self.wrong_length(len as u128));
+            }
+            self.rays = bytemuck::zeroed_vec(self.count);
+        }
+        Ok(())
+    }
+
+    /// The rays, once the body is complete.
+    pub fn finish(mut self) -> Result<Vec<Ray>, BinaryError> {
+        if self.header_len < HEADER_BYTES {
+            return Err(BinaryError::ShortHeader {
+                kind: "RAY1",
+                len: self.header_len,
+            });
+        }
+        if self.filled != 32 * self.count {
+            return Err(self.wrong_length(HEADER_BYTES as u128 + self.filled as u128));
+        }
+        self.rays.truncate(self.count);
+        if cfg!(target_endian = "big") {
+            for x in bytemuck::cast_slice_mut::<Ray, u32>(&mut self.rays) {
+                *x = u32::from_le(*x);
+            }
+        }
+        Ok(self.rays)
+    }
+}
+
+/// The 16-byte header of a HIT1 body of `count` records of `format`.
+pub fn hit1_header(format: HitFormat, count: usize) -> [u8; HEADER_BYTES] {
+    let mut h = [0u8; HEADER_BYTES];
+    h[0..4].copy_from_slice(&HIT1_MAGIC.to_le_bytes());
+    h[4..6].copy_from_slice(&VERSION.to_le_bytes());
+    h[6..8].copy_from_slice(&format.code().to_le_bytes());
+    h[8..16].copy_from_slice(&(count as u64).to_le_bytes());
+    h
 }
 
 /// Writes rays as a RAY1 body.

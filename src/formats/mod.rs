@@ -42,6 +42,21 @@ pub struct LoadOptions {
     pub time: Option<f64>,
 }
 
+/// Which parts of a scene a load keeps; only what a job needs is read.
+///
+/// A separate argument rather than a field of [`LoadOptions`], so that every caller that
+/// writes `LoadOptions { time }` keeps compiling and keeps getting geometry.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Parts {
+    /// World positions (and, when the file animates, the rig that re-poses them): what a
+    /// ray batch needs. No shading attributes, materials, textures or lights.
+    #[default]
+    Geometry,
+    /// Geometry plus per-vertex shading attributes, per-triangle materials, materials,
+    /// textures (encoded, never decoded here) and lights: what a render needs.
+    Shading,
+}
+
 /// Reads a whole file, naming it in the error.
 pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
     std::fs::read(path).map_err(|source| FormatError::Io {
@@ -50,8 +65,20 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
     })
 }
 
-/// Loads a `.glb`, `.gltf` (embedded or side-by-side buffers) or `.tri` scene.
+/// Loads a `.glb`, `.gltf` (embedded or side-by-side buffers) or `.tri` scene: geometry
+/// only ([`Parts::Geometry`]).
 pub fn load_scene(path: &Path, options: &LoadOptions) -> Result<Scene, FormatError> {
+    load_scene_with(path, options, Parts::Geometry)
+}
+
+/// [`load_scene`] keeping `parts`. A `.tri` file has geometry only: with
+/// [`Parts::Shading`] it gets empty shading data (every triangle the default material,
+/// face normals).
+pub fn load_scene_with(
+    path: &Path,
+    options: &LoadOptions,
+    parts: Parts,
+) -> Result<Scene, FormatError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())
@@ -60,11 +87,15 @@ pub fn load_scene(path: &Path, options: &LoadOptions) -> Result<Scene, FormatErr
     match ext.as_str() {
         "tri" => {
             let bytes = read_file(path)?;
-            Ok(Scene::from_triangles(binary::read_tri(&bytes)?))
+            let mut scene = Scene::from_triangles(binary::read_tri(&bytes)?);
+            if parts == Parts::Shading {
+                scene.shading = Some(crate::scene::Shading::flat(scene.triangles.len()));
+            }
+            Ok(scene)
         }
         "glb" | "gltf" => {
             let bytes = read_file(path)?;
-            Ok(gltf::load(&bytes, path.parent(), options)?)
+            Ok(gltf::load_with(&bytes, path.parent(), options, parts)?)
         }
         _ => Err(FormatError::UnknownSceneType(path.display().to_string())),
     }

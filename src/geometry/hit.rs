@@ -3,7 +3,7 @@
 /// What a ray hit: `t` along the ray, the triangle id, and barycentrics such that the hit
 /// point is `(1-u-v)·v0 + u·v1 + v·v2`. A miss is [`Hit::MISS`].
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Hit {
     /// Ray parameter of the hit, `+inf` for a miss.
     pub t: f32,

@@ -5,7 +5,7 @@
 /// The hit interval is the closed `[tmin, tmax]` in units of `dir`'s length; `dir` need
 /// not be normalised. `tmin > tmax` is an empty interval and never hits.
 #[repr(C)]
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Default, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct Ray {
     /// Origin.
     pub org: [f32; 3],

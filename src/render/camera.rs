@@ -169,11 +169,21 @@ impl ViewCamera {
         scene: &Scene,
         aspect: f64,
     ) -> Result<ViewCamera, CameraError> {
+        ViewCamera::choose_from(choice, &scene.cameras, scene.bounds(), aspect)
+    }
+
+    /// The camera `choice` names among `cameras`, framing `bounds` by default.
+    pub fn choose_from(
+        choice: &CameraChoice,
+        cameras: &[Camera],
+        bounds: Option<Aabb>,
+        aspect: f64,
+    ) -> Result<ViewCamera, CameraError> {
         match choice {
             CameraChoice::Scene(index) => {
-                let cam = scene.cameras.get(*index).ok_or(CameraError::NoSuchCamera {
+                let cam = cameras.get(*index).ok_or(CameraError::NoSuchCamera {
                     index: *index,
-                    count: scene.cameras.len(),
+                    count: cameras.len(),
                 })?;
                 ViewCamera::from_scene(cam, aspect)
             }
@@ -183,7 +193,7 @@ impl ViewCamera {
                 up,
                 fov,
             } => ViewCamera::look_at(*eye, *target, *up, *fov, aspect),
-            CameraChoice::Auto => match (scene.cameras.first(), scene.bounds()) {
+            CameraChoice::Auto => match (cameras.first(), bounds) {
                 (Some(cam), _) => ViewCamera::from_scene(cam, aspect),
                 (None, Some(b)) => Ok(ViewCamera::framing(&b, aspect)),
                 (None, None) => {

@@ -21,24 +21,35 @@ pub enum ImageError {
 }
 
 /// Which file format to write.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
 pub enum ImageFormat {
     /// 8-bit sRGB PNG.
+    #[default]
     Png,
     /// Uncompressed 32-bit float RGB OpenEXR.
     Exr,
 }
 
 impl ImageFormat {
-    /// The format a file name asks for (by extension), if any.
+    /// The format a file name asks for (by extension: its name), if any.
     pub fn from_path(path: &std::path::Path) -> Option<ImageFormat> {
-        match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
-            "png" => Some(ImageFormat::Png),
-            "exr" => Some(ImageFormat::Exr),
-            _ => None,
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        crate::names::Spelled::parse_name(&ext).ok()
+    }
+
+    /// The MIME type of the encoded image.
+    pub fn mime(self) -> &'static str {
+        match self {
+            ImageFormat::Png => "image/png",
+            ImageFormat::Exr => "image/x-exr",
         }
     }
 }
+
+crate::spelled!(ImageFormat, [ImageFormat::Png, ImageFormat::Exr]);
 
 /// Linear → sRGB transfer, then 8 bits.
 fn srgb8(x: f32) -> u8 {

@@ -41,7 +41,7 @@ use super::bvh::RefitError;
 use super::{AccelError, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 
-pub use options::{DacrtOptions, ForkSplit, Parallelism, Sampling};
+pub use options::{DacrtOptions, DacrtTuning, ForkSplit, Parallelism, Sampling};
 
 use leaf::{LeafTest, Moller, Table, Watertight};
 use rays::{RayRec, SLOT_MASK};

@@ -251,3 +251,44 @@ mod tests {
         assert!(n.sampling.cost && n.sampling.order && !n.sampling.skip);
     }
 }
+
+/// The settings of both DACRT cores, resolved once where the process starts (the command
+/// line, the service) and passed to every build, so that a structure's settings are part of
+/// its options and not read from the environment behind the caller's back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DacrtTuning {
+    /// `dacrt`'s settings (Áfra 2012).
+    pub afra: DacrtOptions,
+    /// `dacrt-sampled`'s settings (Nabata et al. 2013).
+    pub nabata: DacrtOptions,
+}
+
+impl Default for DacrtTuning {
+    /// The papers' settings, as measured here (no environment).
+    fn default() -> Self {
+        DacrtTuning {
+            afra: DacrtOptions::afra(),
+            nabata: DacrtOptions::nabata(),
+        }
+    }
+}
+
+impl DacrtTuning {
+    /// The defaults with the process's `RAYD_DACRT_*` overrides ([`DacrtOptions::apply`]).
+    pub fn from_env() -> DacrtTuning {
+        let d = DacrtTuning::default();
+        DacrtTuning {
+            afra: d.afra.with_env(),
+            nabata: d.nabata.with_env(),
+        }
+    }
+
+    /// A fingerprint of every setting, for cache keys: equal settings give equal values.
+    pub fn fingerprint(&self) -> u64 {
+        use std::hash::{Hash, Hasher};
+        // Every field is a number or a flag; their Debug text names and spells each one.
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        format!("{self:?}").hash(&mut h);
+        h.finish()
+    }
+}

@@ -31,12 +31,14 @@ use stack::STACK;
 /// stack allocation and the task, and still leave thousands of tasks for load balance.
 const CHUNK: usize = 256;
 
+#[derive(Clone)]
 enum Trees<const N: usize> {
     Fast(TravTree<N, MollerTrumbore>),
     Watertight(TravTree<N, Watertight>),
 }
 
 /// An N-wide MBVH accelerator (`mbvh8` for N = 8, `mbvh4` for N = 4).
+#[derive(Clone)]
 pub struct MbvhCore<const N: usize> {
     trees: Trees<N>,
     backend: Backend,
@@ -242,5 +244,11 @@ where
             Trees::Watertight(t) => t.refit(triangles),
         };
         done.map_err(|e| AccelError::refit(self.name(), e))
+    }
+
+    fn refit_copy(&self, triangles: &[Triangle]) -> Result<Box<dyn Intersector>, AccelError> {
+        let mut copy = self.clone();
+        copy.refit(triangles)?;
+        Ok(Box::new(copy))
     }
 }

@@ -22,12 +22,14 @@ use traverse::PACKET;
 const CHUNK: usize = 256;
 const _: () = assert!(CHUNK % PACKET == 0);
 
+#[derive(Clone)]
 enum Trees {
     Fast(PacketTree<MollerTrumbore>),
     Watertight(PacketTree<Watertight>),
 }
 
 /// The `bvh2` accelerator.
+#[derive(Clone)]
 pub struct Bvh2Packet {
     trees: Trees,
     backend: Backend,
@@ -146,5 +148,11 @@ impl Intersector for Bvh2Packet {
             Trees::Watertight(t) => t.refit(triangles),
         };
         done.map_err(|e| AccelError::refit(self.name(), e))
+    }
+
+    fn refit_copy(&self, triangles: &[Triangle]) -> Result<Box<dyn Intersector>, AccelError> {
+        let mut copy = self.clone();
+        copy.refit(triangles)?;
+        Ok(Box::new(copy))
     }
 }

@@ -3,7 +3,7 @@
 //! an out-of-bounds slice. Values come out as f64 (exact for every glTF component type).
 
 use std::borrow::Cow;
-use std::rc::Rc;
+use std::sync::Arc;
 
 use gltf::json;
 use gltf::json::accessor::{ComponentType, Type};
@@ -33,7 +33,7 @@ pub(super) struct Layout {
 pub(super) struct Data<'a> {
     pub root: &'a json::Root,
     pub buffers: Vec<Cow<'a, [u8]>>,
-    cache: Vec<Option<Rc<[f64]>>>,
+    cache: Vec<Option<Arc<[f64]>>>,
     /// Values of view-less accessors read so far (see [`MAX_VIEWLESS_VALUES`]).
     viewless_values: u64,
 }
@@ -208,7 +208,7 @@ impl<'a> Data<'a> {
     }
 
     /// The view's bytes (within its buffer, already checked) and its stride.
-    fn view_bytes(&self, v: usize) -> Result<(&[u8], Option<usize>), GltfError> {
+    pub(super) fn view_bytes(&self, v: usize) -> Result<(&[u8], Option<usize>), GltfError> {
         let view = self
             .root
             .buffer_views
@@ -359,7 +359,7 @@ impl<'a> Data<'a> {
 
     /// Reads accessor `a` as `count × components` f64 values (dense, sparse applied).
     /// Results are shared between users of the same accessor.
-    pub(super) fn read(&mut self, a: usize) -> Result<Rc<[f64]>, GltfError> {
+    pub(super) fn read(&mut self, a: usize) -> Result<Arc<[f64]>, GltfError> {
         if let Some(Some(v)) = self.cache.get(a) {
             return Ok(v.clone());
         }
@@ -426,7 +426,7 @@ impl<'a> Data<'a> {
                 }
             }
         }
-        let rc: Rc<[f64]> = out.into();
+        let rc: Arc<[f64]> = out.into();
         self.cache[a] = Some(rc.clone());
         Ok(rc)
     }
@@ -494,6 +494,15 @@ pub(super) mod rules {
     /// Morph target deltas under KHR_mesh_quantization: FLOAT or signed integers.
     pub const QUANTIZED_DELTA: &[(ComponentType, Option<bool>)] =
         &[(F32, None), (I8, None), (I16, None)];
+    /// NORMAL and TANGENT (and their morph deltas) under KHR_mesh_quantization.
+    pub const QUANTIZED_NORMAL: &[(ComponentType, Option<bool>)] =
+        &[(F32, None), (I8, Some(true)), (I16, Some(true))];
+    /// TEXCOORD_n without KHR_mesh_quantization.
+    pub const TEXCOORD: &[(ComponentType, Option<bool>)] =
+        &[(F32, None), (U8, Some(true)), (U16, Some(true))];
+    /// COLOR_n.
+    pub const COLOR: &[(ComponentType, Option<bool>)] =
+        &[(F32, None), (U8, Some(true)), (U16, Some(true))];
     pub const INDICES: &[(ComponentType, Option<bool>)] =
         &[(U8, Some(false)), (U16, Some(false)), (U32, Some(false))];
     pub const JOINTS: &[(ComponentType, Option<bool>)] = &[(U8, Some(false)), (U16, Some(false))];
@@ -515,7 +524,7 @@ impl Data<'_> {
         &mut self,
         a: usize,
         expect: &Expect,
-    ) -> Result<(Rc<[f64]>, Layout), GltfError> {
+    ) -> Result<(Arc<[f64]>, Layout), GltfError> {
         let l = self.layout(a)?;
         expect.check(a, &l)?;
         Ok((self.read(a)?, l))

@@ -1,18 +1,6 @@
 //! Animations: every channel is checked when the file loads (so whether a file loads does
-//! not depend on the time asked for), and evaluated at a time `t` on request.
-//!
-//! Rules, from the glTF 2.0 specification (§3.11 and Appendix C):
-//! - `t` is clamped to each sampler's input range;
-//! - STEP holds the value of the last keyframe at or before `t`;
-//! - LINEAR interpolates translations, scales and weights linearly, and rotations by slerp
-//!   of the normalised keyframe quaternions along the shorter arc;
-//! - CUBICSPLINE is the Hermite spline through `(in-tangent, value, out-tangent)` triples,
-//!   tangents scaled by the keyframe interval; rotations are normalised afterwards.
-//!
-//! When several channels (of one or several animations) drive the same node property, the
-//! last one in file order (animations in order, then channels in order) wins.
-
-use std::rc::Rc;
+//! not depend on the time asked for) and becomes a format-free [`Channel`]; sampling at a
+//! time is the scene's ([`crate::scene::rig`] has the rules).
 
 use gltf::json;
 use gltf::json::accessor::Type;
@@ -20,45 +8,14 @@ use gltf::json::animation::{Interpolation, Property};
 use gltf::json::validation::Checked;
 
 use super::accessor::{rules, Data, Expect};
-use super::math;
 use super::GltfError;
+use crate::scene::rig::{self, Channel, Target as Path};
 use crate::scene::AnimationInfo;
-
-/// The node property a channel drives.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Path {
-    Translation,
-    Rotation,
-    Scale,
-    Weights,
-}
-
-/// One checked channel with its sampler's data.
-struct Channel {
-    animation: usize,
-    channel: usize,
-    node: usize,
-    path: Path,
-    interpolation: Interpolation,
-    input: Rc<[f64]>,
-    output: Rc<[f64]>,
-    /// Values per keyframe element: 3, 4, or the number of morph weights.
-    width: usize,
-}
-
-/// A node's animated local state at one time; `None` keeps the stored value.
-#[derive(Clone, Debug, Default)]
-pub(super) struct NodePose {
-    pub translation: Option<[f64; 3]>,
-    pub rotation: Option<[f64; 4]>,
-    pub scale: Option<[f64; 3]>,
-    pub weights: Option<Vec<f64>>,
-}
 
 /// The file's animations, checked.
 pub(super) struct Animations {
     pub infos: Vec<AnimationInfo>,
-    channels: Vec<Channel>,
+    pub channels: Vec<Channel>,
 }
 
 fn bad(animation: usize, reason: String) -> GltfError {
@@ -223,8 +180,12 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
                 animation: ai,
                 channel: ci,
                 node,
-                path,
-                interpolation,
+                target: path,
+                interpolation: match interpolation {
+                    Interpolation::Step => rig::Interpolation::Step,
+                    Interpolation::Linear => rig::Interpolation::Linear,
+                    Interpolation::CubicSpline => rig::Interpolation::CubicSpline,
+                },
                 input,
                 output,
                 width,
@@ -232,110 +193,4 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
         }
     }
     Ok(Animations { infos, channels })
-}
-
-impl Channel {
-    /// Keyframe element `i` (for CUBICSPLINE, `3k + 0/1/2` is in-tangent/value/out-tangent).
-    fn element(&self, i: usize) -> &[f64] {
-        &self.output[i * self.width..(i + 1) * self.width]
-    }
-
-    fn value(&self, k: usize) -> &[f64] {
-        match self.interpolation {
-            Interpolation::CubicSpline => self.element(3 * k + 1),
-            _ => self.element(k),
-        }
-    }
-
-    fn unit_quat(&self, k: usize) -> Result<[f64; 4], GltfError> {
-        let v = self.value(k);
-        math::normalize_quat([v[0], v[1], v[2], v[3]]).ok_or_else(|| {
-            bad(
-                self.animation,
-                format!(
-                    "channel {}: rotation keyframe {k} is a zero quaternion",
-                    self.channel
-                ),
-            )
-        })
-    }
-
-    /// The channel's value at `t`.
-    fn sample(&self, t: f64) -> Result<Vec<f64>, GltfError> {
-        let n = self.input.len();
-        let t = t.max(self.input[0]).min(self.input[n - 1]);
-        // The last keyframe at or before t; times are non-decreasing, so the next keyframe
-        // (if any) is strictly after t and the interval below is positive.
-        let k = self.input.partition_point(|&x| x <= t).saturating_sub(1);
-        let rotation = self.path == Path::Rotation;
-        let hold = || -> Result<Vec<f64>, GltfError> {
-            Ok(if rotation {
-                self.unit_quat(k)?.to_vec()
-            } else {
-                self.value(k).to_vec()
-            })
-        };
-        if k + 1 >= n {
-            return hold();
-        }
-        let (t0, t1) = (self.input[k], self.input[k + 1]);
-        let td = t1 - t0;
-        let s = if td > 0.0 { (t - t0) / td } else { 1.0 };
-        match self.interpolation {
-            Interpolation::Step => hold(),
-            Interpolation::Linear if rotation => {
-                Ok(math::slerp(self.unit_quat(k)?, self.unit_quat(k + 1)?, s).to_vec())
-            }
-            Interpolation::Linear => {
-                let (a, b) = (self.value(k), self.value(k + 1));
-                Ok(a.iter().zip(b).map(|(a, b)| a + s * (b - a)).collect())
-            }
-            Interpolation::CubicSpline => {
-                let p0 = self.element(3 * k + 1);
-                let m0 = self.element(3 * k + 2); // out-tangent of k
-                let p1 = self.element(3 * (k + 1) + 1);
-                let m1 = self.element(3 * (k + 1)); // in-tangent of k+1
-                let (s2, s3) = (s * s, s * s * s);
-                let h00 = 2.0 * s3 - 3.0 * s2 + 1.0;
-                let h10 = s3 - 2.0 * s2 + s;
-                let h01 = -2.0 * s3 + 3.0 * s2;
-                let h11 = s3 - s2;
-                let v: Vec<f64> = (0..self.width)
-                    .map(|i| h00 * p0[i] + h10 * td * m0[i] + h01 * p1[i] + h11 * td * m1[i])
-                    .collect();
-                if rotation {
-                    let q = math::normalize_quat([v[0], v[1], v[2], v[3]]).ok_or_else(|| {
-                        bad(
-                            self.animation,
-                            format!(
-                                "channel {}: the rotation spline passes through zero at t = {t}",
-                                self.channel
-                            ),
-                        )
-                    })?;
-                    Ok(q.to_vec())
-                } else {
-                    Ok(v)
-                }
-            }
-        }
-    }
-}
-
-impl Animations {
-    /// Every node's animated local state at time `t` (seconds), all animations applied.
-    pub(super) fn evaluate(&self, t: f64, nodes: usize) -> Result<Vec<NodePose>, GltfError> {
-        let mut poses = vec![NodePose::default(); nodes];
-        for ch in &self.channels {
-            let v = ch.sample(t)?;
-            let pose = &mut poses[ch.node];
-            match ch.path {
-                Path::Translation => pose.translation = Some([v[0], v[1], v[2]]),
-                Path::Scale => pose.scale = Some([v[0], v[1], v[2]]),
-                Path::Rotation => pose.rotation = Some([v[0], v[1], v[2], v[3]]),
-                Path::Weights => pose.weights = Some(v),
-            }
-        }
-        Ok(poses)
-    }
 }

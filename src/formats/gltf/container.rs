@@ -217,37 +217,61 @@ pub(super) fn resolve_buffers<'a>(
     Ok(out)
 }
 
-/// Reads a buffer stored beside the `.gltf`. URIs are relative references (RFC 3986); a
+/// Why a relative URI could not be read.
+pub(super) enum UriError {
+    /// A scheme, an absolute path or a malformed escape.
+    Unsupported,
+    /// No base directory: only embedded data is allowed.
+    NotAllowed,
+    /// The file could not be read.
+    Io {
+        /// The path tried.
+        path: String,
+        /// The OS error.
+        detail: String,
+    },
+}
+
+/// Reads a file stored beside the `.gltf`. URIs are relative references (RFC 3986); a
 /// scheme or an absolute path is refused, and so is any file access when there is no base
 /// directory (a scene uploaded over HTTP must not read the server's files).
-fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
+pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, UriError> {
     let has_scheme = uri
         .split_once(':')
         .is_some_and(|(scheme, _)| !scheme.is_empty() && !scheme.contains('/'));
     if has_scheme || uri.starts_with('/') || uri.starts_with('\\') {
-        return Err(GltfError::UnsupportedUri {
-            buffer,
-            uri: uri.to_string(),
-        });
+        return Err(UriError::Unsupported);
     }
     let Some(base) = base_dir else {
-        return Err(GltfError::ExternalBufferNotAllowed {
-            buffer,
-            uri: uri.to_string(),
-        });
+        return Err(UriError::NotAllowed);
     };
     // Query and fragment parts are not part of the file name.
     let path_part = uri.split(['?', '#']).next().unwrap_or_default();
-    let decoded = percent_decode(path_part).ok_or_else(|| GltfError::UnsupportedUri {
-        buffer,
-        uri: uri.to_string(),
-    })?;
+    let decoded = percent_decode(path_part).ok_or(UriError::Unsupported)?;
     let path = base.join(decoded);
-    std::fs::read(&path).map_err(|e| GltfError::MissingBuffer {
-        buffer,
-        uri: uri.to_string(),
+    std::fs::read(&path).map_err(|e| UriError::Io {
         path: path.display().to_string(),
         detail: e.to_string(),
+    })
+}
+
+/// [`read_relative`] for buffer `buffer`, with the buffer errors.
+fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
+    read_relative(uri, base_dir).map_err(|e| match e {
+        UriError::Unsupported => GltfError::UnsupportedUri {
+            buffer,
+            uri: uri.to_string(),
+        },
+        UriError::NotAllowed => GltfError::ExternalBufferNotAllowed {
+            buffer,
+            uri: uri.to_string(),
+        },
+        UriError::Io { path, detail } => GltfError::MissingBuffer {
+            buffer,
+            uri: uri.to_string(),
+            path,
+            detail,
+        },
     })
 }
 
@@ -272,7 +296,7 @@ fn percent_decode(s: &str) -> Option<String> {
 }
 
 /// Decodes the part of a data URI after `data:`; only base64 payloads carry binary buffers.
-fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
+pub(super) fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
     let Some((header, payload)) = rest.split_once(',') else {
         return Err("the data URI has no ',' before its payload".to_string());
     };

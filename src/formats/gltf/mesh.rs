@@ -1,57 +1,51 @@
-//! Primitives to world-space triangles: triangulation of every mode, morph targets and
-//! skinning, all in f64, rounded to f32 once.
+//! Primitives to the rig's vertex data: triangulation of every mode, morph targets, joint
+//! sets and (for renders) shading attributes, all checked. Placing them in world space is
+//! the scene's ([`crate::scene::rig`]), in f64, rounded to f32 once.
 
 use std::collections::HashMap;
-use std::rc::Rc;
+use std::sync::Arc;
 
+use glam::DMat4;
 use gltf::json;
 use gltf::json::accessor::Type;
 use gltf::json::mesh::{Mode, Semantic};
 use gltf::json::validation::Checked;
 
 use super::accessor::{rules, Data, Expect};
-use super::math::{self, Mat4};
 use super::GltfError;
-use crate::geometry::Triangle;
+use crate::scene::rig::{Primitive, Skin, SkinSet};
 
-/// A primitive decoded once and shared by every node that instances its mesh.
-struct Prim {
-    /// Vertex indices, three per triangle, in id order; all `< vertices`.
-    corners: Vec<u32>,
-    /// POSITION, 3 per vertex.
-    positions: Rc<[f64]>,
-    /// Per morph target, its POSITION deltas (3 per vertex) if it has any.
-    targets: Vec<Option<Rc<[f64]>>>,
-    /// `JOINTS_n`/`WEIGHTS_n` sets.
-    skin_sets: Vec<SkinSet>,
+/// Pose-independent shading attributes of a primitive (renders only).
+#[derive(Default)]
+pub(super) struct PrimShading {
+    /// The primitive's material, if it names one.
+    pub material: Option<usize>,
+    /// TEXCOORD_0, two per vertex.
+    pub uv0: Option<Arc<[f64]>>,
+    /// TEXCOORD_1, two per vertex.
+    pub uv1: Option<Arc<[f64]>>,
+    /// COLOR_0 and its width (3 or 4 per vertex).
+    pub colors: Option<(Arc<[f64]>, usize)>,
 }
 
-/// One `JOINTS_n`/`WEIGHTS_n` pair, 4 values per vertex each.
-struct SkinSet {
-    joints: Rc<[f64]>,
-    weights: Rc<[f64]>,
+/// A decoded primitive with its shading attributes.
+pub(super) struct Decoded {
+    pub prim: Arc<Primitive>,
+    pub shading: Arc<PrimShading>,
 }
 
-/// One node's use of a mesh.
-pub(super) struct Instance<'s> {
-    /// The node.
-    pub node: usize,
-    /// Its mesh.
-    pub mesh: usize,
-    /// The node's world transform.
-    pub world: &'s Mat4,
-    /// Its morph weights (missing ones are 0).
-    pub weights: &'s [f64],
-    /// For a skinned node, its skin and `jointWorld_j · inverseBind_j` per joint, which
-    /// replace `world` for primitives that have joint sets (glTF: the skinned mesh node's
-    /// own transform is ignored).
-    pub joints: Option<(usize, &'s [Mat4])>,
-}
+/// A decoded primitive as cached: `None` for one without positions.
+type Cached = Option<(Arc<Primitive>, Arc<PrimShading>)>;
 
-/// Turns mesh instances into triangles, caching decoded primitives and skin matrices.
+/// An attribute's values and its accessor type.
+type Values = Option<(Arc<[f64]>, Type)>;
+
+/// Decodes primitives once each and shares them between instances.
 pub(super) struct Meshes {
     quantized: bool,
-    prims: HashMap<(usize, usize), Rc<Prim>>,
+    /// Whether shading attributes are decoded too.
+    shading: bool,
+    prims: HashMap<(usize, usize), Cached>,
 }
 
 fn bad_prim(mesh: usize, primitive: usize, reason: String) -> GltfError {
@@ -76,9 +70,10 @@ fn triangles_for(mode: Mode, n: usize) -> usize {
 }
 
 impl Meshes {
-    pub(super) fn new(quantized: bool) -> Meshes {
+    pub(super) fn new(quantized: bool, shading: bool) -> Meshes {
         Meshes {
             quantized,
+            shading,
             prims: HashMap::new(),
         }
     }
@@ -137,15 +132,21 @@ impl Meshes {
     }
 
     /// Decodes primitive `pi` of mesh `m` (once); `None` when it has no positions.
-    fn prim(
+    pub(super) fn prim(
         &mut self,
         data: &mut Data<'_>,
         m: usize,
         pi: usize,
-    ) -> Result<Option<Rc<Prim>>, GltfError> {
+    ) -> Result<Option<Decoded>, GltfError> {
         if let Some(p) = self.prims.get(&(m, pi)) {
-            return Ok(Some(p.clone()));
+            return Ok(p.clone().map(|(prim, shading)| Decoded { prim, shading }));
         }
+        let decoded = self.decode(data, m, pi)?;
+        self.prims.insert((m, pi), decoded.clone());
+        Ok(decoded.map(|(prim, shading)| Decoded { prim, shading }))
+    }
+
+    fn decode(&self, data: &mut Data<'_>, m: usize, pi: usize) -> Result<Cached, GltfError> {
         let p = &data.root.meshes[m].primitives[pi];
         let Some(pos_a) = attribute(p, Semantic::Positions) else {
             return Ok(None);
@@ -285,6 +286,8 @@ impl Meshes {
                     reason: format!("weight of vertex {} is not finite", k / 4),
                 });
             }
+            // Joint numbers are integers below 2^16, exact in u32.
+            let joints: Arc<[u32]> = joints.iter().map(|&j| j as u32).collect();
             skin_sets.push(SkinSet { joints, weights });
         }
         for sem in p.attributes.keys() {
@@ -298,124 +301,179 @@ impl Meshes {
                 }
             }
         }
-        let prim = Rc::new(Prim {
-            corners,
+        let mut prim = Primitive {
+            corners: corners.into(),
             positions,
             targets,
             skin_sets,
-        });
-        self.prims.insert((m, pi), prim.clone());
-        Ok(Some(prim))
+            ..Primitive::default()
+        };
+        let mut shading = PrimShading::default();
+        if self.shading {
+            self.decode_shading(data, m, pi, vertices, &mut prim, &mut shading)?;
+        }
+        Ok(Some((Arc::new(prim), Arc::new(shading))))
     }
 
-    /// Appends the triangles of one mesh instance.
-    pub(super) fn emit(
-        &mut self,
+    /// Reads one optional vertex attribute, checked against its use and the vertex count.
+    #[allow(clippy::too_many_arguments)]
+    fn attribute_values(
+        &self,
         data: &mut Data<'_>,
-        out: &mut Vec<Triangle>,
-        instance: &Instance<'_>,
+        m: usize,
+        pi: usize,
+        vertices: usize,
+        a: Option<usize>,
+        name: &str,
+        types: &'static [Type],
+        components: &'static [(json::accessor::ComponentType, Option<bool>)],
+    ) -> Result<Values, GltfError> {
+        let Some(a) = a else { return Ok(None) };
+        data.accessor(a, &|| format!("mesh {m} primitive {pi} {name}"))?;
+        let expect = Expect {
+            what: format!("{name} of mesh {m} primitive {pi}"),
+            types,
+            components,
+        };
+        let (v, l) = data.read_as(a, &expect)?;
+        if l.count != vertices {
+            return Err(bad_prim(
+                m,
+                pi,
+                format!(
+                    "{name} has {} elements but the primitive has {vertices} vertices",
+                    l.count
+                ),
+            ));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(GltfError::BadAccessor {
+                accessor: a,
+                reason: format!("{name} has a non-finite value"),
+            });
+        }
+        Ok(Some((v, l.ty)))
+    }
+
+    /// Normals, tangents (with their morph deltas), texture coordinates, colours and the
+    /// material of a primitive.
+    fn decode_shading(
+        &self,
+        data: &mut Data<'_>,
+        m: usize,
+        pi: usize,
+        vertices: usize,
+        prim: &mut Primitive,
+        shading: &mut PrimShading,
     ) -> Result<(), GltfError> {
-        let &Instance {
-            node,
-            mesh: m,
-            world,
-            weights,
-            joints,
-        } = instance;
-        for pi in 0..data.root.meshes[m].primitives.len() {
-            let Some(prim) = self.prim(data, m, pi)? else {
-                continue;
-            };
-            // Targets with a zero weight or without positions change nothing.
-            let morphs: Vec<(f64, &[f64])> = prim
-                .targets
-                .iter()
-                .zip(weights)
-                .filter_map(|(d, &w)| d.as_deref().filter(|_| w != 0.0).map(|d| (w, d)))
-                .collect();
-            let skin = joints.filter(|_| !prim.skin_sets.is_empty());
-            let position = |v: usize| -> Result<[f32; 3], GltfError> {
-                let mut p = [
-                    prim.positions[3 * v],
-                    prim.positions[3 * v + 1],
-                    prim.positions[3 * v + 2],
-                ];
-                for &(w, d) in &morphs {
-                    for k in 0..3 {
-                        p[k] += w * d[3 * v + k];
+        let p = &data.root.meshes[m].primitives[pi];
+        let q = self.quantized;
+        let normal_rules = if q {
+            rules::QUANTIZED_NORMAL
+        } else {
+            rules::FLOAT
+        };
+        let uv_rules = if q { rules::QUANTIZED } else { rules::TEXCOORD };
+        let attrs = [
+            attribute(p, Semantic::Normals),
+            attribute(p, Semantic::Tangents),
+            attribute(p, Semantic::TexCoords(0)),
+            attribute(p, Semantic::TexCoords(1)),
+            attribute(p, Semantic::Colors(0)),
+        ];
+        let targets: Vec<[Option<usize>; 2]> = p
+            .targets
+            .iter()
+            .flatten()
+            .map(|t| [t.normals.map(|a| a.value()), t.tangents.map(|a| a.value())])
+            .collect();
+        shading.material = p.material.map(|x| x.value());
+        let vec3 = &[Type::Vec3];
+        let vec4 = &[Type::Vec4];
+        let vec2 = &[Type::Vec2];
+        let read = |data: &mut Data<'_>, a, name: &str, types, comps| {
+            self.attribute_values(data, m, pi, vertices, a, name, types, comps)
+        };
+        prim.normals = read(data, attrs[0], "NORMAL", vec3, normal_rules)?.map(|v| v.0);
+        prim.tangents = read(data, attrs[1], "TANGENT", vec4, normal_rules)?.map(|v| v.0);
+        shading.uv0 = read(data, attrs[2], "TEXCOORD_0", vec2, uv_rules)?.map(|v| v.0);
+        shading.uv1 = read(data, attrs[3], "TEXCOORD_1", vec2, uv_rules)?.map(|v| v.0);
+        shading.colors = read(
+            data,
+            attrs[4],
+            "COLOR_0",
+            &[Type::Vec3, Type::Vec4],
+            rules::COLOR,
+        )?
+        .map(|(v, ty)| (v, if ty == Type::Vec3 { 3 } else { 4 }));
+        let delta_rules = if q {
+            rules::QUANTIZED_DELTA
+        } else {
+            rules::FLOAT
+        };
+        for (ti, [na, ta]) in targets.into_iter().enumerate() {
+            let n = read(
+                data,
+                na,
+                &format!("NORMAL of morph target {ti}"),
+                vec3,
+                delta_rules,
+            )?;
+            let t = read(
+                data,
+                ta,
+                &format!("TANGENT of morph target {ti}"),
+                vec3,
+                delta_rules,
+            )?;
+            prim.normal_targets.push(n.map(|v| v.0));
+            prim.tangent_targets.push(t.map(|v| v.0));
+        }
+        Ok(())
+    }
+
+    /// Checks that every weighted joint of `prim`'s vertices (in corner order, the order
+    /// triangles are placed) exists in skin `s` of `joints` joints.
+    pub(super) fn check_joints(
+        prim: &Primitive,
+        m: usize,
+        pi: usize,
+        s: usize,
+        joints: usize,
+    ) -> Result<(), GltfError> {
+        for &v in prim.corners.iter() {
+            let v = v as usize;
+            for set in &prim.skin_sets {
+                for k in 0..4 {
+                    let j = set.joints[4 * v + k] as usize;
+                    if set.weights[4 * v + k] != 0.0 && j >= joints {
+                        return Err(GltfError::JointOutOfRange {
+                            mesh: m,
+                            primitive: pi,
+                            vertex: v,
+                            joint: j,
+                            skin: s,
+                            joints,
+                        });
                     }
                 }
-                let q = match skin {
-                    None => math::transform_point(world, p),
-                    Some((skin_index, mats)) => {
-                        let mut s = [[0.0; 4]; 4];
-                        for SkinSet {
-                            joints: js,
-                            weights: ws,
-                        } in &prim.skin_sets
-                        {
-                            for k in 0..4 {
-                                let w = ws[4 * v + k];
-                                if w == 0.0 {
-                                    continue;
-                                }
-                                let j = js[4 * v + k] as usize;
-                                let Some(mat) = mats.get(j) else {
-                                    return Err(GltfError::JointOutOfRange {
-                                        mesh: m,
-                                        primitive: pi,
-                                        vertex: v,
-                                        joint: j,
-                                        skin: skin_index,
-                                        joints: mats.len(),
-                                    });
-                                };
-                                math::add_scaled(&mut s, w, mat);
-                            }
-                        }
-                        math::transform_point(&s, p)
-                    }
-                };
-                let f = q.map(|x| x as f32);
-                if f.iter().any(|x| !x.is_finite()) {
-                    return Err(GltfError::NonFiniteWorldPosition {
-                        node,
-                        mesh: m,
-                        primitive: pi,
-                        vertex: v,
-                    });
-                }
-                Ok(f)
-            };
-            for c in prim.corners.chunks_exact(3) {
-                out.push(Triangle {
-                    v: [
-                        position(c[0] as usize)?,
-                        position(c[1] as usize)?,
-                        position(c[2] as usize)?,
-                    ],
-                });
             }
         }
         Ok(())
     }
 }
 
-/// `jointWorld_j · inverseBind_j` for every joint of skin `s`.
-pub(super) fn skin_matrices(
-    data: &mut Data<'_>,
-    s: usize,
-    world: &[Mat4],
-) -> Result<Vec<Mat4>, GltfError> {
+/// Skin `s`'s joints and inverse bind matrices, checked; `nodes` is the node count.
+pub(super) fn load_skin(data: &mut Data<'_>, s: usize, nodes: usize) -> Result<Skin, GltfError> {
     let skin = &data.root.skins[s];
     let bad = |reason: String| GltfError::BadSkin { skin: s, reason };
     for (k, j) in skin.joints.iter().enumerate() {
-        if j.value() >= world.len() {
+        if j.value() >= nodes {
             return Err(GltfError::DanglingReference {
                 from: format!("skin {s} joint {k}"),
                 kind: "node",
                 index: j.value(),
-                count: world.len(),
+                count: nodes,
             });
         }
     }
@@ -448,16 +506,12 @@ pub(super) fn skin_matrices(
             Some(v)
         }
     };
-    Ok(skin
-        .joints
-        .iter()
-        .enumerate()
-        .map(|(k, j)| {
-            let jw = &world[j.value()];
-            match &ibm {
-                Some(v) => math::mul(jw, &math::from_cols(&v[16 * k..16 * k + 16])),
-                None => *jw,
-            }
-        })
-        .collect())
+    Ok(Skin {
+        joints: skin.joints.iter().map(|j| j.value()).collect(),
+        inverse_bind: ibm.map(|v| {
+            (0..skin.joints.len())
+                .map(|k| DMat4::from_cols_slice(&v[16 * k..16 * k + 16]))
+                .collect()
+        }),
+    })
 }

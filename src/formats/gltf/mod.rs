@@ -9,26 +9,36 @@
 //! 2. `accessor`: every buffer view and accessor range, sparse parts included, against the
 //!    bytes actually present — before any element is read;
 //! 3. `nodes`: references, the tree shape (one parent per node, no cycles) and transforms;
-//! 4. `animation`: every channel checked, evaluated at the requested time;
-//! 5. `mesh`: triangulation, morph targets and skinning, in f64, rounded once to f32.
+//! 4. `animation`: every channel checked, kept as the scene's format-free channels;
+//! 5. `mesh`: triangulation, morph targets, joint sets and (for renders) shading
+//!    attributes, checked; `material`: materials, textures, images and lights (renders).
 //!
-//! Triangle ids follow CONTRACT.md §1: the default scene's nodes in pre-order, for each
-//! node its mesh's primitives in order, each primitive's triangles in index order.
+//! The loader then builds a [`Rig`] (node graph, channels, skins, mesh instances) and asks
+//! it for the pose: positions in f64, rounded once to f32 (`crate::scene::rig`). The rig is
+//! kept in the scene only when the file animates, so [`Scene::evaluate`] can re-pose it
+//! without the file.
+//!
+//! Triangle ids follow the contract's order (`proto/scenes.md`): the default scene's nodes
+//! in pre-order, for each node its mesh's primitives in order, each primitive's triangles
+//! in index order.
 
 mod accessor;
 mod animation;
 mod container;
-mod math;
+mod material;
 mod mesh;
 mod nodes;
 
 use std::path::Path;
+use std::sync::Arc;
 
+use glam::{Vec2, Vec4};
 use gltf::json;
 use gltf::json::validation::Checked;
 
-use super::LoadOptions;
-use crate::scene::{Camera, Projection, Scene};
+use super::{LoadOptions, Parts};
+use crate::scene::rig::{Compute, Instance, Item, Pose, Rig};
+use crate::scene::{Projection, Scene, SceneError, Shading};
 
 pub use accessor::MAX_VIEWLESS_VALUES;
 pub use container::REFUSED_EXTENSIONS;
@@ -357,6 +367,46 @@ pub enum GltfError {
     /// The requested animation time is NaN or infinite.
     #[error("animation time {0} is not a finite number")]
     BadTime(f64),
+    /// A material is malformed (a factor out of range, a bad alpha mode).
+    #[error("material {material}: {reason}")]
+    BadMaterial {
+        /// Material index.
+        material: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A sampler has an invalid filter or wrap mode.
+    #[error("sampler {sampler}: {reason}")]
+    BadSampler {
+        /// Sampler index.
+        sampler: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// An image's bytes cannot be found.
+    #[error("image {image}: {reason}")]
+    BadImage {
+        /// Image index.
+        image: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A KHR_lights_punctual light is malformed.
+    #[error("light {light}: {reason}")]
+    BadLight {
+        /// Index in `KHR_lights_punctual.lights`.
+        light: usize,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The shading data would have more vertices than a u32 can number.
+    #[error("the scene's primitives would have {count} shading vertices, more than the limit of {limit}")]
+    TooManyVertices {
+        /// Vertices asked for (instancing included).
+        count: u64,
+        /// `u32::MAX`.
+        limit: u64,
+    },
     /// The scene would have more than [`MAX_TRIANGLES`] triangles.
     #[error("the scene would have {count} triangles, more than the limit of {limit}")]
     TooManyTriangles {
@@ -367,12 +417,52 @@ pub enum GltfError {
     },
 }
 
-/// Loads a glTF scene from the bytes of a `.glb` or `.gltf` file.
+impl From<SceneError> for GltfError {
+    /// Errors of posing the scene keep the loader's variants and messages.
+    fn from(e: SceneError) -> GltfError {
+        match e {
+            SceneError::BadTime(t) => GltfError::BadTime(t),
+            SceneError::BadAnimation { animation, reason } => {
+                GltfError::BadAnimation { animation, reason }
+            }
+            SceneError::BadNode { node, reason } => GltfError::BadNode { node, reason },
+            SceneError::NonFiniteWorldPosition {
+                node,
+                mesh,
+                primitive,
+                vertex,
+            } => GltfError::NonFiniteWorldPosition {
+                node,
+                mesh,
+                primitive,
+                vertex,
+            },
+            SceneError::JointOutOfRange {
+                mesh,
+                primitive,
+                vertex,
+                joint,
+                skin,
+                joints,
+            } => GltfError::JointOutOfRange {
+                mesh,
+                primitive,
+                vertex,
+                joint,
+                skin,
+                joints,
+            },
+        }
+    }
+}
+
+/// Loads a glTF scene from the bytes of a `.glb` or `.gltf` file: geometry only (see
+/// [`load_with`]).
 ///
 /// `base_dir` is the directory of a `.gltf` whose buffers are side-by-side files; with
 /// `None`, only embedded buffers (GLB BIN chunk, base64 data URIs) are allowed and an
 /// external URI is [`GltfError::ExternalBufferNotAllowed`]. `options.time` evaluates every
-/// animation at that time; `None` is the static pose (CONTRACT.md §1).
+/// animation at that time; `None` is the static pose (`proto/scenes.md`).
 ///
 /// The node graph must be a forest, as glTF requires: a node listed as a child twice, a
 /// cycle, or a scene root that has a parent or is listed twice is an error (never a loop,
@@ -385,6 +475,18 @@ pub fn load(
     bytes: &[u8],
     base_dir: Option<&Path>,
     options: &LoadOptions,
+) -> Result<Scene, GltfError> {
+    load_with(bytes, base_dir, options, Parts::Geometry)
+}
+
+/// [`load`], holding the parts asked for: [`Parts::Geometry`] keeps positions (and the
+/// rig when the file animates); [`Parts::Shading`] adds per-vertex shading attributes,
+/// per-triangle materials, materials, textures with their encoded images, and lights.
+pub fn load_with(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    options: &LoadOptions,
+    parts: Parts,
 ) -> Result<Scene, GltfError> {
     if let Some(t) = options.time.filter(|t| !t.is_finite()) {
         return Err(GltfError::BadTime(t));
@@ -409,24 +511,25 @@ pub fn load(
         .extensions_used
         .iter()
         .any(|e| e == "KHR_mesh_quantization");
+    let shading = parts == Parts::Shading;
 
     let parents = nodes::check(&root)?;
     let order = nodes::scene_order(&root, scene_index, &parents)?;
     let animations = animation::load(&mut data, quantized)?;
-    let poses = match options.time {
-        Some(t) => Some(animations.evaluate(t, root.nodes.len())?),
-        None => None,
+    let mut rig = Rig {
+        nodes: nodes::rig_nodes(&root),
+        roots: (0..root.nodes.len())
+            .filter(|&i| parents[i].is_none())
+            .collect(),
+        channels: animations.channels,
+        skins: vec![None; root.skins.len()],
+        ..Rig::default()
     };
-    let locals = root
-        .nodes
-        .iter()
-        .enumerate()
-        .map(|(i, n)| nodes::local_matrix(i, n, poses.as_ref().map(|p| &p[i])))
-        .collect::<Result<Vec<_>, _>>()?;
-    let world = nodes::world_matrices(&root, &parents, &locals);
+    // The transforms of the pose asked for are checked before any mesh is decoded.
+    rig.check_transforms(options.time)?;
 
     // Bound the output from the document alone, before decoding anything.
-    let mut meshes = mesh::Meshes::new(quantized);
+    let mut meshes = mesh::Meshes::new(quantized, shading);
     let mut per_mesh: Vec<Option<u64>> = vec![None; root.meshes.len()];
     let mut total = 0u64;
     for &n in &order {
@@ -449,64 +552,170 @@ pub fn load(
         });
     }
 
-    let mut triangles = Vec::with_capacity(total as usize);
-    let mut cameras = Vec::new();
-    let mut skins: Vec<Option<Vec<math::Mat4>>> = vec![None; root.skins.len()];
+    let appearance = if shading {
+        Some(material::load(&root, &data, base_dir)?)
+    } else {
+        None
+    };
+    let mut lights = Vec::new();
+    // Per placed primitive, its shading attributes (renders only), in id order.
+    let mut placed: Vec<Arc<mesh::PrimShading>> = Vec::new();
     for &n in &order {
         let node = &root.nodes[n];
         if let Some(m) = node.mesh.map(|m| m.value()) {
-            let weights = morph_weights(&root, n, m, poses.as_ref().map(|p| &p[n]));
-            let joints = match node.skin.map(|s| s.value()) {
-                Some(s) => {
-                    if skins[s].is_none() {
-                        skins[s] = Some(mesh::skin_matrices(&mut data, s, &world)?);
-                    }
-                    skins[s].as_deref().map(|j| (s, j))
+            let skin = node.skin.map(|s| s.value());
+            if let Some(s) = skin {
+                if rig.skins[s].is_none() {
+                    rig.skins[s] = Some(mesh::load_skin(&mut data, s, root.nodes.len())?);
                 }
-                None => None,
-            };
-            let instance = mesh::Instance {
+            }
+            let joints = skin.and_then(|s| rig.skins[s].as_ref().map(|k| (s, k.joints.len())));
+            let mut primitives = Vec::new();
+            for pi in 0..root.meshes[m].primitives.len() {
+                let Some(d) = meshes.prim(&mut data, m, pi)? else {
+                    continue;
+                };
+                if let Some((s, count)) = joints.filter(|_| !d.prim.skin_sets.is_empty()) {
+                    mesh::Meshes::check_joints(&d.prim, m, pi, s, count)?;
+                }
+                if shading {
+                    placed.push(d.shading.clone());
+                }
+                primitives.push((pi, d.prim));
+            }
+            rig.items.push(Item::Mesh(Instance {
                 node: n,
                 mesh: m,
-                world: &world[n],
-                weights: &weights,
-                joints,
-            };
-            meshes.emit(&mut data, &mut triangles, &instance)?;
+                skin,
+                weights: static_weights(&root, n, m),
+                primitives,
+            }));
         }
         if let Some(c) = node.camera.map(|c| c.value()) {
-            // Each local transform is finite, but a chain of large scales can overflow.
-            if world[n].iter().flatten().any(|v| !v.is_finite()) {
-                return Err(GltfError::BadNode {
-                    node: n,
-                    reason: "the camera's world transform is not finite".to_string(),
-                });
-            }
-            cameras.push(Camera {
-                to_world: world[n],
+            rig.items.push(Item::Camera {
+                node: n,
                 projection: projection(&root, c)?,
             });
         }
+        if shading {
+            if let Some(light) = material::light(&root, n)? {
+                lights.push(light);
+                rig.items.push(Item::Light { node: n });
+            }
+        }
     }
+    let prims = || {
+        rig.items.iter().flat_map(|i| match i {
+            Item::Mesh(inst) => inst.primitives.as_slice(),
+            _ => &[],
+        })
+    };
+    if shading {
+        let vertices: u64 = prims().map(|(_, p)| p.vertices() as u64).sum();
+        if vertices > u64::from(u32::MAX) {
+            return Err(GltfError::TooManyVertices {
+                count: vertices,
+                limit: u64::from(u32::MAX),
+            });
+        }
+        rig.normals = prims().any(|(_, p)| p.normals.is_some());
+        rig.tangents = prims().any(|(_, p)| p.tangents.is_some());
+    }
+    let compute = if shading {
+        Compute::PositionsAndNormals
+    } else {
+        Compute::Positions
+    };
+    let mut pose = Pose::default();
+    rig.pose(options.time, compute, &mut pose)?;
+    for (light, m) in lights.iter_mut().zip(&pose.lights) {
+        light.to_world = *m;
+    }
+    let shading_data = shading.then(|| shading_data(&rig, &placed, &mut pose));
+    let animated = !rig.channels.is_empty();
+    let appearance = appearance.unwrap_or(material::Appearance {
+        materials: Vec::new(),
+        textures: Vec::new(),
+        images: Vec::new(),
+    });
     Ok(Scene {
-        triangles,
+        triangles: pose.triangles,
         meshes: root.meshes.len(),
-        cameras,
+        cameras: pose.cameras,
         animations: animations.infos,
+        shading: shading_data,
+        materials: appearance.materials,
+        textures: appearance.textures,
+        images: appearance.images,
+        lights,
+        // A file without animation keeps no rig: its pose never changes.
+        rig: animated.then(|| Arc::new(rig)),
     })
 }
 
-/// Morph weights of node `n` instancing mesh `m`: animated, else the node's, else the
-/// mesh's, else none (all zero).
-fn morph_weights(
-    root: &json::Root,
-    n: usize,
-    m: usize,
-    pose: Option<&animation::NodePose>,
-) -> Vec<f64> {
-    if let Some(w) = pose.and_then(|p| p.weights.as_ref()) {
-        return w.clone();
+/// Shading data in id order: corners renumbered to the placed primitives' vertices,
+/// materials per triangle, pose-independent attributes, and the pose's normals.
+fn shading_data(rig: &Rig, placed: &[Arc<mesh::PrimShading>], pose: &mut Pose) -> Shading {
+    let prims: Vec<_> = rig
+        .items
+        .iter()
+        .flat_map(|i| match i {
+            Item::Mesh(inst) => inst.primitives.as_slice(),
+            _ => &[],
+        })
+        .map(|(_, p)| p)
+        .collect();
+    let triangles: usize = prims.iter().map(|p| p.corners.len() / 3).sum();
+    let mut out = Shading {
+        corners: Vec::with_capacity(triangles),
+        materials: Vec::with_capacity(triangles),
+        normals: std::mem::take(&mut pose.normals),
+        tangents: std::mem::take(&mut pose.tangents),
+        ..Shading::default()
+    };
+    let any_uv0 = placed.iter().any(|s| s.uv0.is_some());
+    let any_uv1 = placed.iter().any(|s| s.uv1.is_some());
+    let any_color = placed.iter().any(|s| s.colors.is_some());
+    let mut base = 0u32;
+    for (prim, s) in prims.iter().zip(placed) {
+        let n = prim.vertices();
+        for c in prim.corners.chunks_exact(3) {
+            out.corners.push([base + c[0], base + c[1], base + c[2]]);
+        }
+        let material = s.material.map_or(Shading::DEFAULT_MATERIAL, |m| m as u32);
+        out.materials
+            .extend(std::iter::repeat(material).take(prim.corners.len() / 3));
+        let uv = |dst: &mut Vec<Vec2>, src: &Option<Arc<[f64]>>| match src {
+            Some(v) => dst.extend(
+                v.chunks_exact(2)
+                    .map(|c| Vec2::new(c[0] as f32, c[1] as f32)),
+            ),
+            None => dst.extend(std::iter::repeat(Vec2::ZERO).take(n)),
+        };
+        if any_uv0 {
+            uv(&mut out.uv0, &s.uv0);
+        }
+        if any_uv1 {
+            uv(&mut out.uv1, &s.uv1);
+        }
+        if any_color {
+            match &s.colors {
+                Some((v, w)) => out.colors.extend(v.chunks_exact(*w).map(|c| {
+                    let a = if *w == 4 { c[3] as f32 } else { 1.0 };
+                    Vec4::new(c[0] as f32, c[1] as f32, c[2] as f32, a)
+                })),
+                None => out.colors.extend(std::iter::repeat(Vec4::ONE).take(n)),
+            }
+        }
+        // Vertices are counted against u32 before the pose is computed.
+        base += n as u32;
     }
+    out
+}
+
+/// Static morph weights of node `n` instancing mesh `m`: the node's, else the mesh's, else
+/// none (all zero).
+fn static_weights(root: &json::Root, n: usize, m: usize) -> Vec<f64> {
     root.nodes[n]
         .weights
         .as_ref()

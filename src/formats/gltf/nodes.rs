@@ -8,11 +8,11 @@
 //! that has a parent or is listed twice is refused. So every node is reached at most once,
 //! a node's world transform is unique, and no traversal can loop or blow up.
 
+use glam::{DMat4, DQuat, DVec3};
 use gltf::json;
 
-use super::animation::NodePose;
-use super::math::{self, Mat4};
 use super::GltfError;
+use crate::scene::rig;
 
 /// Checks every node's references and the tree shape; returns each node's parent.
 pub(super) fn check(root: &json::Root) -> Result<Vec<Option<usize>>, GltfError> {
@@ -135,67 +135,33 @@ pub(super) fn scene_order(
     Ok(order)
 }
 
-fn vec3(v: [f32; 3]) -> [f64; 3] {
-    v.map(f64::from)
-}
-
-/// Node `i`'s local transform: its `matrix` as stored (animation does not apply to a node
-/// with a matrix), else `T·R·S` with animated values replacing stored ones.
-pub(super) fn local_matrix(
-    i: usize,
-    node: &json::Node,
-    pose: Option<&NodePose>,
-) -> Result<Mat4, GltfError> {
-    let bad = |reason: &str| GltfError::BadNode {
-        node: i,
-        reason: reason.to_string(),
-    };
-    let m = if let Some(m) = node.matrix {
-        let v = m.map(f64::from);
-        math::from_cols(&v)
-    } else {
-        let t = pose
-            .and_then(|p| p.translation)
-            .unwrap_or_else(|| vec3(node.translation.unwrap_or([0.0; 3])));
-        let s = pose
-            .and_then(|p| p.scale)
-            .unwrap_or_else(|| vec3(node.scale.unwrap_or([1.0; 3])));
-        let q = match pose.and_then(|p| p.rotation) {
-            Some(q) => q,
-            None => {
-                let q = node.rotation.map_or([0.0, 0.0, 0.0, 1.0], |q| q.0);
-                // Stored rotations must be unit; normalising (in f64) keeps a slightly
-                // off-unit quaternion a rotation instead of a skew.
-                math::normalize_quat(q.map(f64::from))
-                    .ok_or_else(|| bad("rotation is a zero or non-finite quaternion"))?
+/// Every node as the rig holds it: its stored local transform and its children.
+///
+/// A node with a `matrix` keeps it (animation does not apply to such a node); otherwise
+/// its TRS, the stored rotation normalised in f64 so that a slightly off-unit quaternion
+/// stays a rotation instead of a skew. A zero or non-finite rotation is kept as `None`:
+/// it is an error when a pose needs it (see [`crate::scene::rig::Local`]).
+pub(super) fn rig_nodes(root: &json::Root) -> Vec<rig::Node> {
+    let vec3 = |v: [f32; 3]| DVec3::from_array(v.map(f64::from));
+    root.nodes
+        .iter()
+        .map(|node| {
+            let local = match node.matrix {
+                Some(m) => rig::Local::Matrix(DMat4::from_cols_array(&m.map(f64::from))),
+                None => {
+                    let q = node.rotation.map_or([0.0, 0.0, 0.0, 1.0], |q| q.0);
+                    let q = q.map(f64::from);
+                    rig::Local::Trs {
+                        translation: vec3(node.translation.unwrap_or([0.0; 3])),
+                        rotation: rig::normalize_quat(DQuat::from_array(q)),
+                        scale: vec3(node.scale.unwrap_or([1.0; 3])),
+                    }
+                }
+            };
+            rig::Node {
+                local,
+                children: node.children.iter().flatten().map(|c| c.value()).collect(),
             }
-        };
-        math::from_trs(t, q, s)
-    };
-    if m.iter().flatten().any(|v| !v.is_finite()) {
-        return Err(bad("transform has a non-finite value"));
-    }
-    Ok(m)
-}
-
-/// World transforms of every node: parent's world · local, roots at identity.
-pub(super) fn world_matrices(
-    root: &json::Root,
-    parent: &[Option<usize>],
-    local: &[Mat4],
-) -> Vec<Mat4> {
-    let n = root.nodes.len();
-    let mut world = vec![math::IDENTITY; n];
-    let mut stack: Vec<usize> = (0..n).filter(|&i| parent[i].is_none()).collect();
-    for &r in &stack {
-        world[r] = local[r];
-    }
-    while let Some(i) = stack.pop() {
-        for c in root.nodes[i].children.iter().flatten() {
-            let c = c.value();
-            world[c] = math::mul(&world[i], &local[c]);
-            stack.push(c);
-        }
-    }
-    world
+        })
+        .collect()
 }

@@ -1,0 +1,506 @@
+//! Jobs: render jobs and asynchronous traces, from submission to a stored result.
+//!
+//! A job is recorded as `queued` before the client hears `202`, and runs on a thread of its
+//! own that waits in the scheduler for the pool; its progress goes to a watch channel (the
+//! job's events) at once and to the store at most twice a second. Results are stored as
+//! blobs before the record that names them commits, so a crash never shows a half-written
+//! result; a job that was queued or running at a crash is queued again by
+//! [`App::recover`].
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use serde::Serialize;
+use tokio::sync::watch;
+
+use super::{App, AppError, RenderSpec, TraceParams};
+use crate::geometry::Ray;
+use crate::jobs::render::FrameInput;
+use crate::jobs::{sched, trace, CancelToken, JobError};
+use crate::store::{BlobId, JobKind, JobOutcome, JobRecord, JobState, NewJob};
+
+/// A job as the API shows it (contract §5).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct JobView {
+    /// Opaque id.
+    pub id: String,
+    /// `trace` or `render`.
+    pub kind: JobKind,
+    /// Where it is.
+    pub state: JobState,
+    /// 0 to 1.
+    pub progress: f64,
+    /// The scene.
+    pub scene: String,
+    /// The geometry version.
+    pub version: i64,
+    /// Submission time, milliseconds since the epoch.
+    pub created_at: i64,
+    /// Start time.
+    pub started_at: Option<i64>,
+    /// End time.
+    pub finished_at: Option<i64>,
+    /// When the finished job and its result will be deleted.
+    pub expires_at: Option<i64>,
+    /// Timings and counters.
+    pub stats: Option<serde_json::Value>,
+    /// Why it failed.
+    pub error: Option<String>,
+    /// Results: 1 for an image or a HIT1 body, one per frame for a sequence.
+    pub results: usize,
+    /// The request, as resolved at submission.
+    pub request: serde_json::Value,
+}
+
+impl JobView {
+    fn from_record(r: &JobRecord) -> JobView {
+        JobView {
+            id: r.id.clone(),
+            kind: r.kind,
+            state: r.state,
+            progress: if r.state == JobState::Succeeded {
+                1.0
+            } else {
+                r.progress
+            },
+            scene: r.scene_id.clone(),
+            version: r.version,
+            created_at: r.created_at,
+            started_at: r.started_at,
+            finished_at: r.finished_at,
+            expires_at: r.expires_at,
+            stats: r
+                .stats
+                .as_deref()
+                .and_then(|s| serde_json::from_str(s).ok()),
+            error: r.error.clone(),
+            results: r.result_frames.len().max(usize::from(r.result.is_some())),
+            request: serde_json::from_str(&r.request).unwrap_or(serde_json::Value::Null),
+        }
+    }
+}
+
+/// A running or queued job of this process.
+pub(super) struct Live {
+    cancel: CancelToken,
+    events: watch::Sender<JobView>,
+}
+
+/// The events of a job: the current state now, then each change until it ends.
+pub enum JobEvents {
+    /// A live job.
+    Live(watch::Receiver<JobView>),
+    /// A job that has ended: its final state.
+    Ended(Box<JobView>),
+}
+
+/// What an async trace job keeps of its request (the rays are in a blob).
+#[derive(serde::Serialize, serde::Deserialize)]
+struct TraceJobRequest {
+    params: TraceParams,
+    rays_blob: String,
+}
+
+/// What a job runs.
+enum Work {
+    Render(Box<RenderSpec>),
+    Trace(TraceJobRequest),
+}
+
+impl App {
+    /// A job's state.
+    pub async fn job(&self, id: &str) -> Result<JobView, AppError> {
+        let record = self.store().get_job(id).await?;
+        let mut view = JobView::from_record(&record);
+        // A live job's progress is fresher than the store's.
+        if let Some(l) = self.live(id) {
+            view.progress = view.progress.max(l.borrow().progress);
+        }
+        Ok(view)
+    }
+
+    fn live(&self, id: &str) -> Option<watch::Receiver<JobView>> {
+        let live = self.inner.live.lock().unwrap_or_else(|e| e.into_inner());
+        live.get(id).map(|l| l.events.subscribe())
+    }
+
+    /// A page of jobs.
+    pub async fn jobs(
+        &self,
+        limit: u32,
+        page_token: Option<&str>,
+    ) -> Result<(Vec<JobView>, Option<String>), AppError> {
+        let (records, next) = self.store().list_jobs(limit, page_token).await?;
+        Ok((records.iter().map(JobView::from_record).collect(), next))
+    }
+
+    /// A job's events.
+    pub async fn job_events(&self, id: &str) -> Result<JobEvents, AppError> {
+        let view = self.job(id).await?;
+        match self.live(id) {
+            Some(rx) if !view.state.is_finished() => Ok(JobEvents::Live(rx)),
+            _ => Ok(JobEvents::Ended(Box::new(view))),
+        }
+    }
+
+    /// Submits a render job. An `Idempotency-Key` already used returns the first job
+    /// (`false`).
+    pub async fn submit_render(
+        &self,
+        scene: &str,
+        spec: RenderSpec,
+        idempotency_key: Option<String>,
+    ) -> Result<(JobView, bool), AppError> {
+        let (request, times) = spec.resolve(self.engine().limits().max_frames)?;
+        request.check(self.engine().limits(), times.len())?;
+        // Checks the scene, version and time now, so that a bad one is this request's
+        // error and not the job's.
+        let (geometry, _) = self.geometry(scene, spec.version, spec.time).await?;
+        let mut spec = spec;
+        spec.version = Some(geometry.key.version);
+        let priority = spec.priority;
+        let ticket = self.engine().scheduler().admit(priority as u16, false)?;
+        let new = NewJob {
+            kind: JobKind::Render,
+            scene_id: scene.to_string(),
+            version: geometry.key.version as i64,
+            request: serde_json::to_string(&spec).expect("a spec serialises"),
+            priority,
+            idempotency_key,
+        };
+        let (record, created) = self.store().create_job(new).await?;
+        if created {
+            self.start(record.clone(), Work::Render(Box::new(spec)), ticket);
+        }
+        Ok((JobView::from_record(&record), created))
+    }
+
+    /// Submits an asynchronous trace (`Prefer: respond-async`): the rays are stored and
+    /// the job's result is the HIT1 body.
+    pub async fn submit_trace(
+        &self,
+        scene: &str,
+        params: TraceParams,
+        rays_body: Vec<u8>,
+    ) -> Result<JobView, AppError> {
+        let (geometry, _) = self.geometry(scene, params.version, params.time).await?;
+        let ticket = self.engine().scheduler().admit(50, false)?;
+        let rays_blob = self.store().put_blob(rays_body).await?;
+        let mut params = params;
+        params.version = Some(geometry.key.version);
+        let request = TraceJobRequest {
+            params,
+            rays_blob: rays_blob.to_string(),
+        };
+        let (record, _) = self
+            .store()
+            .create_job(NewJob {
+                kind: JobKind::Trace,
+                scene_id: scene.to_string(),
+                version: geometry.key.version as i64,
+                request: serde_json::to_string(&request).expect("serialises"),
+                priority: 50,
+                idempotency_key: None,
+            })
+            .await?;
+        self.start(record.clone(), Work::Trace(request), ticket);
+        Ok(JobView::from_record(&record))
+    }
+
+    /// Cancels a queued or running job (it stops within one wave and stays as
+    /// `cancelled`); deletes an ended one with its results.
+    pub async fn cancel_or_delete(&self, id: &str) -> Result<Option<JobView>, AppError> {
+        let record = self.store().get_job(id).await?;
+        if record.state.is_finished() {
+            self.store().delete_job(id).await?;
+            return Ok(None);
+        }
+        let cancelled = self.store().cancel_job(id).await?;
+        let live = self
+            .inner
+            .live
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(id);
+        let view = JobView::from_record(&cancelled);
+        if let Some(l) = live {
+            l.cancel.cancel();
+            let _ = l.events.send(view.clone());
+        }
+        Ok(Some(view))
+    }
+
+    /// The stored result of a finished job: frame `frame` of a sequence, else the one
+    /// result. `(blob id, media type)`.
+    pub async fn result(
+        &self,
+        id: &str,
+        frame: Option<usize>,
+    ) -> Result<(String, String), AppError> {
+        let record = self.store().get_job(id).await?;
+        if record.state != JobState::Succeeded {
+            return Err(AppError::NotReady(id.to_string()));
+        }
+        let blob = match (frame, &record.result, record.result_frames.as_slice()) {
+            (None | Some(0), Some(r), _) => r.clone(),
+            (Some(k), None, frames) if k < frames.len() => frames[k].clone(),
+            (None, None, [first, ..]) => first.clone(),
+            (Some(k), _, frames) => {
+                return Err(AppError::BadParameter {
+                    field: "frame",
+                    detail: format!(
+                        "frame {k} does not exist: the job has {} result(s)",
+                        frames.len().max(usize::from(record.result.is_some()))
+                    ),
+                })
+            }
+            _ => return Err(AppError::NotReady(id.to_string())),
+        };
+        Ok((blob.blob, blob.content_type))
+    }
+
+    /// Queues again every job the store holds as queued (after [`crate::store::Store::recover`]
+    /// sent back the ones running at a crash). Returns how many.
+    pub async fn recover(&self) -> Result<usize, AppError> {
+        let jobs = self.store().recover().await?;
+        let n = jobs.len();
+        for record in jobs {
+            let work = match record.kind {
+                JobKind::Render => {
+                    serde_json::from_str(&record.request).map(|s| Work::Render(Box::new(s)))
+                }
+                JobKind::Trace => serde_json::from_str(&record.request).map(Work::Trace),
+            };
+            match work {
+                Ok(work) => {
+                    let ticket = self.engine().scheduler().readmit(record.priority as u16);
+                    self.start(record, work, ticket);
+                }
+                Err(e) => {
+                    // Not silently lost: failed with the reason.
+                    let _ = self.store().start_job(&record.id).await;
+                    let _ = self
+                        .store()
+                        .finish_job(
+                            &record.id,
+                            JobOutcome::Failed {
+                                error: format!(
+                                    "after a restart the stored request did not parse: {e}"
+                                ),
+                                stats: None,
+                            },
+                        )
+                        .await;
+                }
+            }
+        }
+        Ok(n)
+    }
+
+    /// Starts the job's thread.
+    fn start(&self, record: JobRecord, work: Work, ticket: sched::Ticket) {
+        let cancel = CancelToken::new();
+        let (events, _) = watch::channel(JobView::from_record(&record));
+        self.inner
+            .live
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(
+                record.id.clone(),
+                Live {
+                    cancel: cancel.clone(),
+                    events: events.clone(),
+                },
+            );
+        let app = self.clone();
+        let spawned = std::thread::Builder::new()
+            .name(format!("rayd-job-{}", &record.id[..8.min(record.id.len())]))
+            .spawn(move || app.run(record, work, ticket, cancel, events));
+        if let Err(e) = spawned {
+            tracing::error!("cannot start a job thread: {e}");
+        }
+    }
+
+    /// The job's thread: runs the work, stores the result, ends the record.
+    fn run(
+        &self,
+        record: JobRecord,
+        work: Work,
+        ticket: sched::Ticket,
+        cancel: CancelToken,
+        events: watch::Sender<JobView>,
+    ) {
+        let id = record.id.clone();
+        let rt = self.inner.runtime.clone();
+        let span = tracing::info_span!("job", job = %id);
+        let _enter = span.enter();
+        tracing::info!(kind = record.kind.as_str(), "job queued");
+        let view = Arc::new(std::sync::Mutex::new(JobView::from_record(&record)));
+        let last_store = Arc::new(AtomicU64::new(0));
+        let t0 = Instant::now();
+        let progress = {
+            let (events, view, store, id, rt) = (
+                events.clone(),
+                Arc::clone(&view),
+                self.store().clone(),
+                id.clone(),
+                rt.clone(),
+            );
+            let last_store = Arc::clone(&last_store);
+            Arc::new(move |p: f64| {
+                let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
+                v.progress = p;
+                let _ = events.send(v.clone());
+                // The store hears about progress at most every 500 ms.
+                let ms = t0.elapsed().as_millis() as u64;
+                if ms >= last_store.load(Ordering::Relaxed) + 500 {
+                    last_store.store(ms, Ordering::Relaxed);
+                    let (store, id) = (store.clone(), id.clone());
+                    rt.spawn(async move { store.set_progress(&id, p).await });
+                }
+            }) as crate::jobs::control::ProgressFn
+        };
+        let started = {
+            let (store, id, rt, events, view) = (
+                self.store().clone(),
+                id.clone(),
+                rt.clone(),
+                events.clone(),
+                Arc::clone(&view),
+            );
+            move || {
+                if let Ok(r) = rt.block_on(store.start_job(&id)) {
+                    let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
+                    *v = JobView::from_record(&r);
+                    let _ = events.send(v.clone());
+                }
+                tracing::info!("job started");
+            }
+        };
+        let control = self
+            .engine()
+            .control(cancel.clone(), Some(progress), ticket)
+            .on_start(started);
+        let outcome = match work {
+            Work::Render(spec) => self.run_render(&record, &spec, &control),
+            Work::Trace(req) => self.run_trace(&record, &req, &control),
+        };
+        drop(control);
+        let end = match outcome {
+            Ok((stats, results)) => {
+                let (result, frames) = if results.len() == 1 {
+                    (results.into_iter().next(), Vec::new())
+                } else {
+                    (None, results)
+                };
+                JobOutcome::Succeeded {
+                    stats: Some(stats.to_string()),
+                    result,
+                    frames,
+                }
+            }
+            Err(AppError::Job(JobError::Cancelled)) => {
+                tracing::info!("job cancelled");
+                self.forget_live(&id);
+                return;
+            }
+            Err(e) => JobOutcome::Failed {
+                error: e.to_string(),
+                stats: None,
+            },
+        };
+        // A job cancelled after its last wave has nothing to finish.
+        if !cancel.is_cancelled() {
+            // The job may not have started (it failed in the queue): start it to end it.
+            let store = self.store().clone();
+            let finished = rt.block_on(async {
+                if matches!(
+                    store.get_job(&id).await.map(|r| r.state),
+                    Ok(JobState::Queued)
+                ) {
+                    let _ = store.start_job(&id).await;
+                }
+                store.finish_job(&id, end).await
+            });
+            match finished {
+                Ok(r) => {
+                    tracing::info!(state = r.state.as_str(), "job ended");
+                    let _ = events.send(JobView::from_record(&r));
+                }
+                Err(e) => tracing::error!("cannot record the job's end: {e}"),
+            }
+        }
+        self.forget_live(&id);
+    }
+
+    fn forget_live(&self, id: &str) {
+        self.inner
+            .live
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(id);
+    }
+
+    fn run_render(
+        &self,
+        record: &JobRecord,
+        spec: &RenderSpec,
+        control: &crate::jobs::Control,
+    ) -> Result<(serde_json::Value, Vec<(BlobId, String)>), AppError> {
+        let rt = &self.inner.runtime;
+        let (request, times) = spec.resolve(self.engine().limits().max_frames)?;
+        let scene = record.scene_id.clone();
+        let version = Some(record.version as u32);
+        // Geometry for each time comes through the store and caches (async); the job's
+        // thread waits for it.
+        let frame_at = |time: Option<f64>| {
+            rt.block_on(self.geometry(&scene, version, time.filter(|_| version == Some(1))))
+                .map(|(geometry, cameras)| FrameInput { geometry, cameras })
+                .map_err(|e| JobError::Geometry(e.to_string()))
+        };
+        let mut results = Vec::new();
+        let mime = request.format.mime();
+        let mut emit = |_k: usize, bytes: Vec<u8>| {
+            let blob = rt
+                .block_on(self.store().put_blob(bytes))
+                .map_err(|e| JobError::Geometry(format!("storing the result: {e}")))?;
+            results.push((blob, mime.to_string()));
+            Ok(())
+        };
+        let report = self
+            .engine()
+            .render(&request, &times, &frame_at, control, &mut emit)?;
+        Ok((serde_json::to_value(report).expect("serialises"), results))
+    }
+
+    fn run_trace(
+        &self,
+        record: &JobRecord,
+        req: &TraceJobRequest,
+        control: &crate::jobs::Control,
+    ) -> Result<(serde_json::Value, Vec<(BlobId, String)>), AppError> {
+        let rt = &self.inner.runtime;
+        let bytes = rt.block_on(self.store().get_blob(&req.rays_blob))?;
+        let mut rays: Vec<Ray> =
+            crate::formats::binary::read_rays(&bytes).map_err(|e| AppError::BadUpload {
+                detail: e.to_string(),
+                byte_offset: None,
+            })?;
+        drop(bytes);
+        let invalid = trace::validate(&mut rays, req.params.invalid)?;
+        let (geometry, _) = rt.block_on(self.geometry(
+            &record.scene_id,
+            Some(record.version as u32),
+            req.params.time,
+        ))?;
+        let (body, report) =
+            self.engine()
+                .trace(&geometry, &rays, &req.params.request(), invalid, control)?;
+        let blob = rt.block_on(self.store().put_blob(body.as_ref().to_vec()))?;
+        Ok((
+            serde_json::to_value(report).expect("serialises"),
+            vec![(blob, "application/octet-stream".to_string())],
+        ))
+    }
+}

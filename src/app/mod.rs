@@ -1,0 +1,133 @@
+//! The service's domain, between the HTTP handlers and the engine: scenes, their geometry
+//! versions and jobs, kept in the [`Store`] and run by the [`Engine`].
+//!
+//! The handlers (`crate::service`) know HTTP and call this layer; this layer knows neither
+//! HTTP nor how rays are traced (that is `crate::jobs` and the cores). Everything a client
+//! was told has happened is in the store first: a `201` scene, a `202` job and a finished
+//! result survive a crash, and a job that was queued or running when the process died is
+//! queued again at the next start ([`App::recover`]).
+
+mod jobs;
+mod scenes;
+mod spec;
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+pub use jobs::{JobEvents, JobView};
+pub use scenes::{scene_info, SceneView, UploadKind};
+pub use spec::{FramesSpec, RenderSpec, TraceParams};
+
+use crate::jobs::{Engine, JobError};
+use crate::store::{Store, StoreError};
+
+/// Errors of the domain layer, each with what the handlers need to pick a status code.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The store failed or refused (not found, full, corrupt, …).
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// The job engine refused or failed.
+    #[error(transparent)]
+    Job(#[from] JobError),
+    /// An uploaded scene or geometry body does not load.
+    #[error("{detail}")]
+    BadUpload {
+        /// What is wrong, with the place.
+        detail: String,
+        /// Byte offset of the problem, where known.
+        byte_offset: Option<u64>,
+    },
+    /// A request parameter is malformed or contradicts the scene (400).
+    #[error("{field}: {detail}")]
+    BadParameter {
+        /// The parameter.
+        field: &'static str,
+        /// What is wrong.
+        detail: String,
+    },
+    /// A well-formed request that cannot be done (422): the wrong triangle count, an
+    /// option this renderer does not support.
+    #[error("{field}: {detail}")]
+    Unprocessable {
+        /// The field.
+        field: &'static str,
+        /// What is wrong.
+        detail: String,
+    },
+    /// The job has not finished (409).
+    #[error("job {0} has no result yet")]
+    NotReady(String),
+    /// The CPU work was lost (the pool went away).
+    #[error("internal: {0}")]
+    Internal(String),
+}
+
+/// How the domain layer behaves.
+#[derive(Clone, Debug)]
+pub struct AppOptions {
+    /// Bytes of evaluated geometry (positions per scene, version and time) kept in memory.
+    pub geometry_bytes: usize,
+}
+
+impl Default for AppOptions {
+    fn default() -> Self {
+        AppOptions {
+            geometry_bytes: 1 << 30,
+        }
+    }
+}
+
+/// The domain layer; cheap to clone.
+#[derive(Clone)]
+pub struct App {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    store: Store,
+    engine: Arc<Engine>,
+    runtime: tokio::runtime::Handle,
+    scenes: scenes::SceneCache,
+    live: Mutex<HashMap<String, jobs::Live>>,
+}
+
+impl App {
+    /// The domain over `store`, running work on `engine`; must be made inside a tokio
+    /// runtime, whose handle the job threads use to reach the store.
+    pub fn new(store: Store, engine: Arc<Engine>, options: AppOptions) -> App {
+        App {
+            inner: Arc::new(Inner {
+                store,
+                engine,
+                runtime: tokio::runtime::Handle::current(),
+                scenes: scenes::SceneCache::new(options.geometry_bytes),
+                live: Mutex::new(HashMap::new()),
+            }),
+        }
+    }
+
+    /// The store.
+    pub fn store(&self) -> &Store {
+        &self.inner.store
+    }
+
+    /// The engine.
+    pub fn engine(&self) -> &Arc<Engine> {
+        &self.inner.engine
+    }
+
+    /// Runs CPU work `f` on the engine's pool and awaits it, so that the async runtime's
+    /// threads never compute.
+    pub(crate) async fn cpu<T: Send + 'static>(
+        &self,
+        f: impl FnOnce() -> T + Send + 'static,
+    ) -> Result<T, AppError> {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        self.inner.engine.spawn(move || {
+            let _ = tx.send(f());
+        });
+        rx.await
+            .map_err(|_| AppError::Internal("the worker pool dropped a task".into()))
+    }
+}

@@ -1,0 +1,444 @@
+//! Scenes: uploads, geometry versions, and the triangles a job traces.
+//!
+//! An upload is parsed before anything is stored: a body that does not load leaves nothing
+//! behind. Parsed scenes and evaluated geometry are kept in memory (bounded) and rebuilt
+//! lazily from the stored bytes after a restart. Only embedded buffers are accepted: the
+//! loader is given no directory, so an uploaded document can never make the server open a
+//! file it names.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use serde::Serialize;
+use serde_json::json;
+
+use super::{App, AppError, TraceParams};
+use crate::formats::binary::read_tri;
+use crate::formats::LoadOptions;
+use crate::geometry::{Ray, Triangle};
+use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
+use crate::scene::Scene;
+use crate::store::{BlobId, NewScene, SceneRecord};
+
+/// What an upload is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UploadKind {
+    /// `model/gltf-binary`.
+    Glb,
+    /// `model/gltf+json`, buffers embedded.
+    Gltf,
+    /// `application/x-rayd-tri`.
+    Tri,
+}
+
+impl UploadKind {
+    /// The MIME types accepted for uploads.
+    pub const MEDIA_TYPES: [&'static str; 3] = [
+        "model/gltf-binary",
+        "model/gltf+json",
+        "application/x-rayd-tri",
+    ];
+
+    /// The kind of a `Content-Type` (parameters ignored), if accepted.
+    pub fn from_media_type(content_type: &str) -> Option<UploadKind> {
+        let essence = content_type
+            .split(';')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_ascii_lowercase();
+        match essence.as_str() {
+            "model/gltf-binary" => Some(UploadKind::Glb),
+            "model/gltf+json" => Some(UploadKind::Gltf),
+            "application/x-rayd-tri" => Some(UploadKind::Tri),
+            _ => None,
+        }
+    }
+
+    fn media_type(self) -> &'static str {
+        match self {
+            UploadKind::Glb => Self::MEDIA_TYPES[0],
+            UploadKind::Gltf => Self::MEDIA_TYPES[1],
+            UploadKind::Tri => Self::MEDIA_TYPES[2],
+        }
+    }
+}
+
+/// A scene as the API shows it: its id, latest version and the fields of `rayd info`.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SceneView {
+    /// Content hash of the uploaded bytes.
+    pub id: String,
+    /// Latest geometry version.
+    pub version: i64,
+    /// The upload's media type.
+    pub content_type: String,
+    /// The name given at upload, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+    /// Upload time, milliseconds since the epoch.
+    pub created_at: i64,
+    /// The fields of `rayd info`.
+    #[serde(flatten)]
+    pub info: serde_json::Map<String, serde_json::Value>,
+}
+
+impl SceneView {
+    fn from_record(r: SceneRecord) -> SceneView {
+        let info = serde_json::from_str(&r.summary).unwrap_or_default();
+        SceneView {
+            id: r.id,
+            version: r.latest_version,
+            content_type: r.content_type,
+            name: r.name,
+            created_at: r.created_at,
+            info,
+        }
+    }
+}
+
+/// The fields of `rayd info` for `scene` (contract §4).
+pub fn scene_info(scene: &Scene) -> serde_json::Value {
+    json!({
+        "triangles": scene.triangles.len(),
+        "bounds": scene.bounds().map(|b| json!({"min": b.min, "max": b.max})),
+        "meshes": scene.meshes,
+        "animations": scene.animations.iter()
+            .map(|a| json!({"name": a.name, "duration": a.duration}))
+            .collect::<Vec<_>>(),
+        "cameras": scene.cameras.len(),
+        "bytes": scene.bytes(),
+        "simd": crate::simd::selected().name(),
+    })
+}
+
+/// Parses an upload (CPU work: call on the pool).
+fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
+    let upload = |detail: String| AppError::BadUpload {
+        detail,
+        byte_offset: None,
+    };
+    match kind {
+        UploadKind::Tri => read_tri(bytes)
+            .map(Scene::from_triangles)
+            .map_err(|e| upload(e.to_string())),
+        UploadKind::Glb | UploadKind::Gltf => {
+            crate::formats::gltf::load(bytes, None, &LoadOptions { time: None })
+                .map_err(|e| upload(e.to_string()))
+        }
+    }
+}
+
+/// A scene's cameras at one pose.
+type Cameras = Arc<Vec<crate::scene::Camera>>;
+
+/// A parsed scene: its static pose, and the rig that poses it at other times.
+struct Loaded {
+    scene: Arc<Scene>,
+}
+
+/// Parsed scenes and evaluated geometry, in memory.
+pub(super) struct SceneCache {
+    budget: usize,
+    state: Mutex<CacheState>,
+}
+
+#[derive(Default)]
+struct CacheState {
+    loaded: HashMap<String, Arc<Loaded>>,
+    geometry: HashMap<GeometryKey, (Arc<Vec<Triangle>>, Cameras, u64)>,
+    bytes: usize,
+    clock: u64,
+}
+
+impl SceneCache {
+    pub(super) fn new(budget: usize) -> SceneCache {
+        SceneCache {
+            budget,
+            state: Mutex::new(CacheState::default()),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, CacheState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn geometry(&self, key: &GeometryKey) -> Option<(Arc<Vec<Triangle>>, Cameras)> {
+        let mut s = self.lock();
+        s.clock += 1;
+        let now = s.clock;
+        s.geometry.get_mut(key).map(|(g, c, used)| {
+            *used = now;
+            (Arc::clone(g), Arc::clone(c))
+        })
+    }
+
+    fn keep_geometry(&self, key: GeometryKey, tris: Arc<Vec<Triangle>>, cameras: Cameras) {
+        let bytes = std::mem::size_of_val(&tris[..]);
+        let mut s = self.lock();
+        s.clock += 1;
+        let now = s.clock;
+        if let Some((old, _, _)) = s.geometry.insert(key, (tris, cameras, now)) {
+            s.bytes -= std::mem::size_of_val(&old[..]);
+        }
+        s.bytes += bytes;
+        while s.bytes > self.budget && s.geometry.len() > 1 {
+            let oldest = s
+                .geometry
+                .iter()
+                .min_by_key(|(_, (_, _, used))| *used)
+                .map(|(k, _)| k.clone())
+                .expect("not empty");
+            let (g, _, _) = s.geometry.remove(&oldest).expect("just found");
+            s.bytes -= std::mem::size_of_val(&g[..]);
+        }
+    }
+
+    fn forget(&self, scene: &str) {
+        let mut s = self.lock();
+        s.loaded.remove(scene);
+        let keys: Vec<_> = s
+            .geometry
+            .keys()
+            .filter(|k| &*k.scene == scene)
+            .cloned()
+            .collect();
+        for k in keys {
+            let (g, _, _) = s.geometry.remove(&k).expect("listed");
+            s.bytes -= std::mem::size_of_val(&g[..]);
+        }
+    }
+}
+
+impl App {
+    /// Stores an upload as a scene: parses it first (a body that does not load leaves
+    /// nothing behind), then stores the bytes and the record. The same bytes again give the
+    /// same scene and `false`.
+    pub async fn upload(
+        &self,
+        kind: UploadKind,
+        bytes: Vec<u8>,
+        name: Option<String>,
+    ) -> Result<(SceneView, bool), AppError> {
+        let id = BlobId::of(&bytes);
+        if let Ok(existing) = self.store().get_scene(id.as_str()).await {
+            return Ok((SceneView::from_record(existing), false));
+        }
+        let bytes = Arc::new(bytes);
+        let b = Arc::clone(&bytes);
+        let scene = self.cpu(move || parse(kind, &b)).await??;
+        let summary = scene_info(&scene).to_string();
+        let blob = self.store().put_blob(bytes.to_vec()).await?;
+        let (record, created) = self
+            .store()
+            .create_scene(NewScene {
+                blob,
+                content_type: kind.media_type().to_string(),
+                name,
+                summary,
+            })
+            .await?;
+        self.inner.scenes.lock().loaded.insert(
+            record.id.clone(),
+            Arc::new(Loaded {
+                scene: Arc::new(scene),
+            }),
+        );
+        Ok((SceneView::from_record(record), created))
+    }
+
+    /// A scene's record.
+    pub async fn scene(&self, id: &str) -> Result<SceneView, AppError> {
+        Ok(SceneView::from_record(self.store().get_scene(id).await?))
+    }
+
+    /// A page of scenes and the next page's token.
+    pub async fn scenes(
+        &self,
+        limit: u32,
+        page_token: Option<&str>,
+    ) -> Result<(Vec<SceneView>, Option<String>), AppError> {
+        let (records, next) = self.store().list_scenes(limit, page_token).await?;
+        Ok((
+            records.into_iter().map(SceneView::from_record).collect(),
+            next,
+        ))
+    }
+
+    /// Deletes a scene, its versions and its cached structures.
+    pub async fn delete_scene(&self, id: &str) -> Result<(), AppError> {
+        self.store().delete_scene(id).await?;
+        self.inner.scenes.forget(id);
+        self.engine().cache().forget_scene(id);
+        Ok(())
+    }
+
+    /// The parsed static pose of scene `id`, parsing the stored bytes after a restart.
+    async fn loaded(&self, id: &str) -> Result<Arc<Loaded>, AppError> {
+        if let Some(l) = self.inner.scenes.lock().loaded.get(id) {
+            return Ok(Arc::clone(l));
+        }
+        let record = self.store().get_scene(id).await?;
+        let kind = UploadKind::from_media_type(&record.content_type).ok_or_else(|| {
+            AppError::Internal(format!(
+                "scene {id} has an unknown stored type {}",
+                record.content_type
+            ))
+        })?;
+        let bytes = Arc::new(self.store().get_blob(id).await?);
+        let b = Arc::clone(&bytes);
+        let scene = self.cpu(move || parse(kind, &b)).await??;
+        let loaded = Arc::new(Loaded {
+            scene: Arc::new(scene),
+        });
+        self.inner
+            .scenes
+            .lock()
+            .loaded
+            .insert(id.to_string(), Arc::clone(&loaded));
+        Ok(loaded)
+    }
+
+    /// Stores new positions for every triangle of scene `id` as its next version.
+    pub async fn update_geometry(&self, id: &str, body: Vec<u8>) -> Result<i64, AppError> {
+        let loaded = self.loaded(id).await?;
+        let expected = loaded.scene.triangles.len();
+        let body = Arc::new(body);
+        let b = Arc::clone(&body);
+        let tris = self
+            .cpu(move || read_tri(&b))
+            .await?
+            .map_err(|e| AppError::BadUpload {
+                detail: e.to_string(),
+                byte_offset: None,
+            })?;
+        if tris.len() != expected {
+            return Err(AppError::Unprocessable {
+                field: "count",
+                detail: format!(
+                    "the body has {} triangles but scene {id} has {expected}: a geometry update gives new positions for every triangle, same ids",
+                    tris.len()
+                ),
+            });
+        }
+        let blob = self.store().put_blob(body.to_vec()).await?;
+        let version = self.store().add_version(id, &blob).await?.version;
+        self.inner.scenes.keep_geometry(
+            GeometryKey::new(id, version as u32, None),
+            Arc::new(tris),
+            Arc::new(loaded.scene.cameras.clone()),
+        );
+        Ok(version)
+    }
+
+    /// The triangles of scene `id` at `version` (default: the latest) and `time` (version
+    /// 1 only), and the scene's cameras at that time.
+    pub(super) async fn geometry(
+        &self,
+        id: &str,
+        version: Option<u32>,
+        time: Option<f64>,
+    ) -> Result<(Geometry, Arc<Vec<crate::scene::Camera>>), AppError> {
+        let latest = self.store().get_scene(id).await?.latest_version as u32;
+        let version = version.unwrap_or(latest);
+        if version == 0 || version > latest {
+            return Err(crate::store::StoreError::NotFound {
+                what: "version",
+                id: format!("{id} version {version}"),
+            }
+            .into());
+        }
+        if let Some(t) = time {
+            if version != 1 {
+                return Err(AppError::BadParameter {
+                    field: "time",
+                    detail: format!(
+                        "version {version} holds positions only; time evaluates version 1's animation"
+                    ),
+                });
+            }
+            if !t.is_finite() {
+                return Err(AppError::BadParameter {
+                    field: "time",
+                    detail: "must be a finite number of seconds".into(),
+                });
+            }
+        }
+        let key = GeometryKey::new(id, version, time);
+        let loaded = self.loaded(id).await?;
+        if let Some((triangles, cameras)) = self.inner.scenes.geometry(&key) {
+            return Ok((Geometry { key, triangles }, cameras));
+        }
+        let mut cameras = Arc::new(loaded.scene.cameras.clone());
+        let tris: Arc<Vec<Triangle>> = if version == 1 && time.is_none() {
+            Arc::new(loaded.scene.triangles.clone())
+        } else if let (1, Some(t)) = (version, time) {
+            // The scene's rig re-poses it: no second parse of the file.
+            let l = Arc::clone(&loaded);
+            let pose = self
+                .cpu(move || l.scene.evaluate(t, crate::scene::Compute::Positions))
+                .await?
+                .map_err(|e| AppError::BadParameter {
+                    field: "time",
+                    detail: e.to_string(),
+                })?;
+            cameras = Arc::new(pose.cameras);
+            Arc::new(pose.triangles)
+        } else {
+            let v = self.store().get_version(id, version as i64).await?;
+            let bytes = self.store().get_blob(&v.blob).await?;
+            let tris = self.cpu(move || read_tri(&bytes)).await?.map_err(|e| {
+                AppError::Internal(format!("stored version {version} of {id}: {e}"))
+            })?;
+            Arc::new(tris)
+        };
+        self.inner
+            .scenes
+            .keep_geometry(key.clone(), Arc::clone(&tris), Arc::clone(&cameras));
+        Ok((
+            Geometry {
+                key,
+                triangles: tris,
+            },
+            cameras,
+        ))
+    }
+
+    /// Admits a synchronous trace to the queue (before its body is read, so that a full
+    /// queue answers at once).
+    pub fn admit_trace(&self) -> Result<sched::Ticket, AppError> {
+        Ok(self
+            .engine()
+            .scheduler()
+            .admit(sched::SYNC_PRIORITY, true)?)
+    }
+
+    /// Traces `rays` against scene `id` (a synchronous trace, admitted with `ticket`).
+    pub async fn trace(
+        &self,
+        id: &str,
+        params: &TraceParams,
+        mut rays: Vec<Ray>,
+        ticket: sched::Ticket,
+    ) -> Result<(HitBody, TraceReport), AppError> {
+        let (geometry, _) = self.geometry(id, params.version, params.time).await?;
+        let request = params.request();
+        let engine = Arc::clone(self.engine());
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        // The job waits for the pool on a thread of its own; its work runs on the pool.
+        std::thread::Builder::new()
+            .name("rayd-trace".into())
+            .spawn(move || {
+                let result = (|| {
+                    let invalid = trace::validate(&mut rays, request.invalid)?;
+                    let control = engine.control(Default::default(), None, ticket);
+                    engine.trace(&geometry, &rays, &request, invalid, &control)
+                })();
+                let _ = tx.send(result);
+            })
+            .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
+        Ok(rx
+            .await
+            .map_err(|_| AppError::Internal("the trace thread died".into()))??)
+    }
+}

@@ -1,0 +1,267 @@
+//! `rayd serve` (the HTTP service) and `rayd healthcheck` (a probe for container health
+//! checks in an image without curl).
+
+use std::io::{Read, Write};
+use std::net::{TcpStream, ToSocketAddrs};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde_json::json;
+
+use super::CliError;
+use crate::service::{self, AppState, ServeArgs, ServiceError};
+
+/// Runs the service until SIGTERM or SIGINT and the grace period.
+pub(super) fn run(args: ServeArgs) -> Result<serde_json::Value, CliError> {
+    service::init_logging(args.log_format);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("rayd-http")
+        .build()
+        .map_err(|source| io("cannot start the async runtime", source))?;
+    runtime.block_on(serve(args))
+}
+
+async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
+    let addr = args.addr;
+    let state = AppState::new(args)?;
+    let config = state.config.clone();
+    // The store first: a second server on the same directory stops here.
+    let store = crate::store::Store::open(
+        &config.data_dir,
+        crate::store::StoreOptions {
+            result_ttl: (config.result_ttl > 0).then(|| Duration::from_secs(config.result_ttl)),
+            max_bytes: config.max_store_bytes,
+            ..Default::default()
+        },
+    )
+    .await
+    .map_err(|e| CliError::Usage(format!("cannot open the store: {e}")))?;
+    let engine = Arc::new(crate::jobs::Engine::new(crate::jobs::EngineOptions {
+        threads: config.threads,
+        cache_bytes: config.cache_bytes as usize,
+        max_queued: config.max_queued,
+        limits: crate::jobs::Limits {
+            max_rays: config.max_rays as usize,
+            max_pixels: config.max_pixels,
+            max_spp: config.max_spp,
+            ..crate::jobs::Limits::default()
+        },
+        tuning: crate::accel::dacrt::DacrtTuning::from_env(),
+    })?);
+    let app = crate::app::App::new(store.clone(), Arc::clone(&engine), Default::default());
+    let router = service::router(state.clone(), service::routes::routes())
+        .layer(axum::Extension(app.clone()));
+    let listener =
+        service::bind(addr).map_err(|source| io(&format!("cannot listen on {addr}"), source))?;
+    service::health::shutdown_on_signals(state.ready.clone(), state.shutdown.clone())
+        .map_err(|source| io("cannot install the SIGTERM handler", source))?;
+    #[cfg(unix)]
+    service::auth::reload_on_sighup(state.auth.clone(), state.shutdown.clone())
+        .map_err(|source| io("cannot install the SIGHUP handler", source))?;
+    // Jobs that were queued or running when the last process ended run again.
+    let recovered = app
+        .recover()
+        .await
+        .map_err(|e| CliError::Usage(format!("cannot recover the queued jobs: {e}")))?;
+    if recovered > 0 {
+        tracing::info!(jobs = recovered, "re-queued jobs from the last run");
+    }
+    if config.demo {
+        demo(&app).await;
+    }
+    spawn_housekeeping(state.clone(), app.clone());
+    state.ready.set_ready();
+    tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is listening");
+    let stopped = service::serve(
+        listener,
+        router,
+        state.server_options(),
+        state.ready.clone(),
+        state.shutdown.clone(),
+        state.metrics.clone(),
+    )
+    .await
+    .map_err(|source| io("serving failed", source))?;
+    // No new work; running jobs had the grace period to finish. Flush the store.
+    engine.scheduler().shut_down();
+    store.close().await;
+    Ok(json!({
+        "addr": addr.to_string(),
+        "drained": stopped.drained,
+        "abandoned_connections": stopped.abandoned,
+        "recovered_jobs": recovered,
+    }))
+}
+
+/// `--demo`: uploads the repository's sample scenes (built into the binary).
+async fn demo(app: &crate::app::App) {
+    const SCENES: [(&str, &[u8]); 3] = [
+        ("Fox.glb", include_bytes!("../../scenes/Fox.glb")),
+        ("Box.glb", include_bytes!("../../scenes/Box.glb")),
+        (
+            "SimpleMeshes.glb",
+            include_bytes!("../../scenes/SimpleMeshes.glb"),
+        ),
+    ];
+    for (name, bytes) in SCENES {
+        match app
+            .upload(
+                crate::app::UploadKind::Glb,
+                bytes.to_vec(),
+                Some(name.into()),
+            )
+            .await
+        {
+            Ok((s, _)) => tracing::info!(scene = %s.id, name, "demo scene"),
+            Err(e) => tracing::error!(name, "demo scene refused: {e}"),
+        }
+    }
+}
+
+/// Once a second: the gauges of `/metrics`; once a minute: expiry and blob collection.
+fn spawn_housekeeping(state: AppState, app: crate::app::App) {
+    tokio::spawn(async move {
+        let mut tick = tokio::time::interval(Duration::from_secs(1));
+        let mut n = 0u64;
+        loop {
+            tokio::select! {
+                _ = tick.tick() => {}
+                _ = state.shutdown.cancelled() => break,
+            }
+            let sched = app.engine().scheduler();
+            state.metrics.set_queue_length(sched.queued());
+            state.metrics.set_jobs_running(sched.running());
+            let cache = app.engine().cache().stats();
+            state.metrics.set_cache_bytes(cache.bytes as u64);
+            n += 1;
+            if n % 60 == 0 {
+                let store = app.store();
+                if let Err(e) = store.expire(crate::store::now_millis()).await {
+                    tracing::warn!("expiring finished jobs failed: {e}");
+                }
+                if let Err(e) = store.gc().await {
+                    tracing::warn!("blob collection failed: {e}");
+                }
+            }
+        }
+    });
+}
+
+fn io(what: &str, source: std::io::Error) -> CliError {
+    CliError::Service(ServiceError::Io {
+        what: what.to_owned(),
+        source,
+    })
+}
+
+/// Options of `rayd healthcheck`.
+#[derive(clap::Args, Debug)]
+pub(super) struct HealthcheckArgs {
+    /// URL to probe (plain http only).
+    #[arg(
+        long,
+        env = "RAYD_HEALTHCHECK_URL",
+        default_value = "http://127.0.0.1:8080/healthz"
+    )]
+    url: String,
+    /// Seconds to wait for the whole answer.
+    #[arg(long, default_value_t = 3.0)]
+    timeout: f64,
+}
+
+/// GETs the URL; succeeds (exit 0) only on a 200.
+pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliError> {
+    let usage = CliError::Usage;
+    if !(a.timeout.is_finite() && a.timeout > 0.0) {
+        return Err(usage(format!(
+            "--timeout {} is not a positive number of seconds",
+            a.timeout
+        )));
+    }
+    let timeout = Duration::from_secs_f64(a.timeout);
+    let rest = a
+        .url
+        .strip_prefix("http://")
+        .ok_or_else(|| usage(format!("--url {}: only http:// URLs can be probed", a.url)))?;
+    let (authority, path) = match rest.find('/') {
+        Some(i) => (&rest[..i], &rest[i..]),
+        None => (rest, "/"),
+    };
+    if authority.is_empty() || authority.contains('@') {
+        return Err(usage(format!(
+            "--url {}: no host[:port] after http://",
+            a.url
+        )));
+    }
+    let target = if authority
+        .rsplit_once(':')
+        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
+        && !authority.ends_with(']')
+    {
+        authority.to_owned()
+    } else {
+        format!("{authority}:80")
+    };
+    let fail = |what: String| CliError::Usage(format!("healthcheck {}: {what}", a.url));
+    let start = Instant::now();
+    let addrs: Vec<_> = target
+        .to_socket_addrs()
+        .map_err(|e| fail(format!("cannot resolve {target}: {e}")))?
+        .collect();
+    let mut stream = None;
+    let mut last = None;
+    for addr in addrs {
+        match TcpStream::connect_timeout(&addr, timeout) {
+            Ok(s) => {
+                stream = Some(s);
+                break;
+            }
+            Err(e) => last = Some(e),
+        }
+    }
+    let mut stream = stream.ok_or_else(|| {
+        fail(match last {
+            Some(e) => format!("cannot connect: {e}"),
+            None => format!("{target} resolves to no address"),
+        })
+    })?;
+    let left = |start: Instant| {
+        timeout
+            .saturating_sub(start.elapsed())
+            .max(Duration::from_millis(1))
+    };
+    stream
+        .set_write_timeout(Some(left(start)))
+        .and_then(|()| {
+            write!(
+                stream,
+                "GET {path} HTTP/1.1\r\nHost: {authority}\r\nUser-Agent: rayd-healthcheck\r\nConnection: close\r\n\r\n"
+            )
+        })
+        .map_err(|e| fail(format!("cannot send the request: {e}")))?;
+    // Only the status line matters; read until it is complete.
+    let mut head = Vec::new();
+    let mut buf = [0u8; 512];
+    while !head.contains(&b'\n') && head.len() < 4096 {
+        stream
+            .set_read_timeout(Some(left(start)))
+            .map_err(|e| fail(e.to_string()))?;
+        match stream.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => head.extend_from_slice(&buf[..n]),
+            Err(e) => return Err(fail(format!("no answer: {e}"))),
+        }
+    }
+    let line = String::from_utf8_lossy(&head);
+    let line = line.lines().next().unwrap_or("");
+    let status = line
+        .strip_prefix("HTTP/1.")
+        .and_then(|r| r.get(2..5))
+        .and_then(|c| c.parse::<u16>().ok())
+        .ok_or_else(|| fail(format!("not an HTTP answer: {line:?}")))?;
+    if status != 200 {
+        return Err(fail(format!("answered {status}, not 200")));
+    }
+    Ok(json!({ "url": a.url, "status": status }))
+}

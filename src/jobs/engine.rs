@@ -1,0 +1,261 @@
+//! The engine: the pool, the cache, the scheduler, and how a job gets its structure.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::cache::{StructureCache, StructureKey};
+use super::sched::Scheduler;
+use super::{seconds_since, CancelToken, Control, Geometry, JobError, Limits};
+use crate::accel::auto::{self, Geometry as Known};
+use crate::accel::dacrt::DacrtTuning;
+use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision};
+
+/// How to make an [`Engine`].
+#[derive(Clone, Copy, Debug)]
+pub struct EngineOptions {
+    /// Threads of the pool; 0: all cores.
+    pub threads: usize,
+    /// Bytes of built structures the cache may hold.
+    pub cache_bytes: usize,
+    /// Jobs that may wait to start before new work is refused.
+    pub max_queued: usize,
+    /// Bounds every request must fit in.
+    pub limits: Limits,
+    /// DACRT settings for every build.
+    pub tuning: DacrtTuning,
+}
+
+impl Default for EngineOptions {
+    fn default() -> Self {
+        EngineOptions {
+            threads: 0,
+            cache_bytes: 2 << 30,
+            max_queued: 64,
+            limits: Limits::default(),
+            tuning: DacrtTuning::default(),
+        }
+    }
+}
+
+/// Where a job's structure came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Source {
+    /// Built for this job.
+    Built,
+    /// Found in the cache: no build.
+    Cached,
+    /// A cached structure over earlier positions, refitted into a copy.
+    Refitted,
+}
+
+/// A job's structure, ready to trace.
+pub struct Prepared {
+    /// The accelerator.
+    pub accel: Arc<dyn Intersector>,
+    /// Seconds spent building or refitting it (0 when cached).
+    pub build_seconds: f64,
+    /// Where it came from.
+    pub source: Source,
+}
+
+/// The engine (see the module docs of [`crate::jobs`]).
+pub struct Engine {
+    pool: Arc<rayon::ThreadPool>,
+    cache: StructureCache,
+    sched: Arc<Scheduler>,
+    options: EngineOptions,
+}
+
+impl Engine {
+    /// Starts the pool.
+    pub fn new(options: EngineOptions) -> Result<Engine, rayon::ThreadPoolBuildError> {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(options.threads)
+            .thread_name(|i| format!("rayd-pool-{i}"))
+            .build()?;
+        Ok(Engine {
+            pool: Arc::new(pool),
+            cache: StructureCache::new(options.cache_bytes),
+            sched: Scheduler::new(options.max_queued),
+            options,
+        })
+    }
+
+    /// Threads of the pool.
+    pub fn threads(&self) -> usize {
+        self.pool.current_num_threads()
+    }
+
+    /// The limits in force.
+    pub fn limits(&self) -> &Limits {
+        &self.options.limits
+    }
+
+    /// The structure cache.
+    pub fn cache(&self) -> &StructureCache {
+        &self.cache
+    }
+
+    /// The scheduler.
+    pub fn scheduler(&self) -> &Arc<Scheduler> {
+        &self.sched
+    }
+
+    /// Runs `f` on the pool without waiting for the scheduler's lease: small CPU work a
+    /// request needs before it can be queued, such as parsing an upload.
+    pub fn spawn(&self, f: impl FnOnce() + Send + 'static) {
+        self.pool.spawn(f);
+    }
+
+    /// Hooks for a job that runs alone, nobody cancelling it (the command line).
+    pub fn detached(&self) -> Control {
+        Control::new(Arc::clone(&self.pool), CancelToken::new(), None, None)
+    }
+
+    /// Hooks for a scheduled job.
+    pub fn control(
+        &self,
+        cancel: CancelToken,
+        progress: Option<super::control::ProgressFn>,
+        ticket: super::sched::Ticket,
+    ) -> Control {
+        Control::new(Arc::clone(&self.pool), cancel, progress, Some(ticket))
+    }
+
+    /// Build options for `quality` and `precision` on this engine.
+    pub fn build_options(&self, quality: BuildQuality, precision: Precision) -> BuildOptions {
+        BuildOptions {
+            quality,
+            precision,
+            threads: self.threads(),
+            dacrt: self.options.tuning,
+        }
+    }
+
+    fn key(
+        &self,
+        geometry: &Geometry,
+        accel: AccelKind,
+        quality: BuildQuality,
+        precision: Precision,
+    ) -> StructureKey {
+        let bvh = matches!(
+            accel,
+            AccelKind::Mbvh8 | AccelKind::Mbvh4 | AccelKind::Bvh2 | AccelKind::Embree
+        );
+        let tuning = match accel {
+            AccelKind::Dacrt | AccelKind::DacrtSampled => self.options.tuning.fingerprint(),
+            _ => 0,
+        };
+        StructureKey {
+            geometry: geometry.key.clone(),
+            accel,
+            // Cores without a build quality share one entry whatever was asked.
+            quality: if bvh {
+                quality
+            } else {
+                BuildQuality::default()
+            },
+            precision,
+            simd: crate::simd::selected().name(),
+            tuning,
+        }
+    }
+
+    /// What exists for `kind` over `geometry`, as `auto`'s model sees it.
+    fn known(&self, key: &StructureKey) -> Known {
+        if self.cache.contains(key) {
+            Known::Built
+        } else if self.cache.refittable(key).is_some() {
+            Known::Refittable
+        } else {
+            Known::New
+        }
+    }
+
+    /// Resolves `accel` for a job of `rays` rays in `batches` trace calls over `geometry`:
+    /// `auto` asks the cost model, told what the cache holds.
+    pub fn resolve(
+        &self,
+        accel: AccelKind,
+        geometry: &Geometry,
+        quality: BuildQuality,
+        precision: Precision,
+        rays: usize,
+        batches: usize,
+    ) -> AccelKind {
+        let mbvh = self.key(geometry, AccelKind::Mbvh8, quality, precision);
+        accel.resolve(&auto::Job {
+            rays,
+            batches,
+            triangles: geometry.triangles.len(),
+            threads: self.threads(),
+            quality,
+            geometry: self.known(&mbvh),
+        })
+    }
+
+    /// The structure of `kind` (resolved) over `geometry`: from the cache, refitted from a
+    /// cached structure over other positions of the same scene when the cost model expects
+    /// that to finish first (`rays` and `batches` describe the job), or built, and kept in
+    /// the cache. Call inside the pool (a [`Control::step`]).
+    pub fn structure(
+        &self,
+        geometry: &Geometry,
+        kind: AccelKind,
+        quality: BuildQuality,
+        precision: Precision,
+        rays: usize,
+        batches: usize,
+    ) -> Result<Prepared, JobError> {
+        let key = self.key(geometry, kind, quality, precision);
+        if let Some(accel) = self.cache.get(&key) {
+            return Ok(Prepared {
+                accel,
+                build_seconds: 0.0,
+                source: Source::Cached,
+            });
+        }
+        let t0 = Instant::now();
+        let options = self.build_options(quality, precision);
+        let geometry_triangles = geometry.triangles.len();
+        let refit_pays = || {
+            let job = |geometry| auto::Job {
+                rays,
+                batches,
+                triangles: geometry_triangles,
+                threads: self.threads(),
+                quality,
+                geometry,
+            };
+            let refit = auto::predict(AccelKind::Mbvh8, &job(Known::Refittable));
+            let build = auto::predict(AccelKind::Mbvh8, &job(Known::New));
+            matches!((refit, build), (Some(r), Some(b)) if r < b)
+        };
+        let mut made: Option<(Box<dyn Intersector>, Source)> = None;
+        if let Some(old) = self.cache.refittable(&key) {
+            if refit_pays() {
+                // A refused refit (a triangle turned degenerate, say) falls back to a build.
+                if let Ok(copy) = old.refit_copy(&geometry.triangles) {
+                    made = Some((copy, Source::Refitted));
+                }
+            }
+        }
+        let (accel, source) = match made {
+            Some(m) => m,
+            None => (
+                crate::accel::build(kind, &geometry.triangles, &options)?,
+                Source::Built,
+            ),
+        };
+        let build_seconds = seconds_since(t0);
+        let accel: Arc<dyn Intersector> = Arc::from(accel);
+        self.cache.insert(key, Arc::clone(&accel));
+        Ok(Prepared {
+            accel,
+            build_seconds,
+            source,
+        })
+    }
+}

@@ -1,0 +1,366 @@
+//! Render jobs: one image, or one per animation time, in waves the scheduler can
+//! interleave with other work.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::engine::Source;
+use super::{seconds_since, Control, Engine, Geometry, JobError, Limits};
+use crate::accel::{AccelKind, BuildQuality, Precision};
+use crate::render::camera::{CameraChoice, ViewCamera};
+use crate::render::image::{encode, ImageFormat};
+use crate::render::{Integrator, RenderOptions, Waves};
+use crate::scene::Camera;
+
+/// What to render (the options of `rayd render` and of the render route's body, less the
+/// scene, version and times, which say which geometry).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderRequest {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// What a pixel shows.
+    pub integrator: Integrator,
+    /// Path bounces.
+    pub bounces: u32,
+    /// The camera.
+    pub camera: CameraChoice,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Output format.
+    pub format: ImageFormat,
+    /// The accelerator (`auto` resolves per frame).
+    pub accel: AccelKind,
+    /// Build quality of the BVH accelerators.
+    pub build: BuildQuality,
+    /// Ray/triangle test.
+    pub precision: Precision,
+}
+
+impl Default for RenderRequest {
+    fn default() -> Self {
+        RenderRequest {
+            width: 640,
+            height: 480,
+            spp: 1,
+            integrator: Integrator::Primary,
+            bounces: 2,
+            camera: CameraChoice::Auto,
+            seed: 0,
+            format: ImageFormat::Png,
+            accel: AccelKind::Auto,
+            build: BuildQuality::Sah,
+            precision: Precision::Watertight,
+        }
+    }
+}
+
+impl RenderRequest {
+    /// Checks the request against `limits`, naming the field that does not fit.
+    pub fn check(&self, limits: &Limits, frames: usize) -> Result<(), JobError> {
+        let side = |what: &'static str, v: u32| {
+            if v == 0 {
+                Err(JobError::Invalid {
+                    field: what,
+                    detail: "must be at least 1".into(),
+                })
+            } else if v > limits.max_side {
+                Err(JobError::Limit {
+                    what,
+                    value: v as u64,
+                    limit: limits.max_side as u64,
+                })
+            } else {
+                Ok(())
+            }
+        };
+        side("width", self.width)?;
+        side("height", self.height)?;
+        let pixels = self.width as u64 * self.height as u64;
+        if pixels > limits.max_pixels {
+            return Err(JobError::Limit {
+                what: "pixels",
+                value: pixels,
+                limit: limits.max_pixels,
+            });
+        }
+        if self.spp == 0 {
+            return Err(JobError::Invalid {
+                field: "spp",
+                detail: "must be at least 1".into(),
+            });
+        }
+        let checks = [
+            ("spp", self.spp as u64, limits.max_spp as u64),
+            ("bounces", self.bounces as u64, limits.max_bounces as u64),
+            ("frames", frames as u64, limits.max_frames as u64),
+        ];
+        for (what, value, limit) in checks {
+            if value > limit {
+                return Err(JobError::Limit { what, value, limit });
+            }
+        }
+        Ok(())
+    }
+
+    /// Trace calls one frame makes (camera rays per sample, plus one per AO sample or path
+    /// bounce) per wave, and rays in all, for `auto`'s model.
+    fn work(&self) -> (usize, usize) {
+        let per_sample = match self.integrator {
+            Integrator::Ao => 2,
+            Integrator::Path => 1 + self.bounces as usize,
+            _ => 1,
+        };
+        let batches = self.spp as usize * per_sample;
+        (
+            self.width as usize * self.height as usize * batches,
+            batches,
+        )
+    }
+}
+
+/// The scene as one frame needs it.
+pub struct FrameInput {
+    /// World-space triangles at the frame's time.
+    pub geometry: Geometry,
+    /// The scene's cameras at that time.
+    pub cameras: Arc<Vec<Camera>>,
+}
+
+/// Where one frame's time went.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct FrameTimes {
+    /// The animation time (`None`: the static pose).
+    pub time: Option<f64>,
+    /// Seconds to evaluate the scene at that time.
+    pub evaluate_seconds: f64,
+    /// Seconds to build, refit or precompute the structure (0 when cached).
+    pub prepare_seconds: f64,
+    /// Seconds inside the intersector.
+    pub trace_seconds: f64,
+    /// Everything else of the frame: ray generation, shading, wave bookkeeping.
+    pub shade_seconds: f64,
+    /// Seconds to encode the image.
+    pub encode_seconds: f64,
+    /// The accelerator used (what `auto` chose).
+    pub accel: &'static str,
+    /// Where the structure came from.
+    pub structure: Source,
+    /// Rays traced.
+    pub rays: u64,
+}
+
+/// What a render did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct RenderReport {
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// The integrator.
+    pub integrator: Integrator,
+    /// The output format.
+    pub format: ImageFormat,
+    /// Threads of the pool.
+    pub threads: usize,
+    /// Rays traced, all frames.
+    pub rays: u64,
+    /// Seconds of structure preparation, all frames.
+    pub build_seconds: f64,
+    /// Seconds inside the intersector, all frames.
+    pub trace_seconds: f64,
+    /// Seconds from the first frame's start to the last image, all included.
+    pub render_seconds: f64,
+    /// Per frame.
+    pub frames: Vec<FrameTimes>,
+}
+
+/// Maps one frame's progress into the job's.
+struct FrameWaves<'a> {
+    control: &'a Control,
+    frame: usize,
+    frames: usize,
+}
+
+impl Waves for FrameWaves<'_> {
+    type Error = JobError;
+    fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), JobError> {
+        self.control.step(wave)
+    }
+    fn wave_seconds(&self) -> f64 {
+        self.control.wave_seconds()
+    }
+    fn progress(&self, fraction: f64) {
+        self.control
+            .progress((self.frame as f64 + fraction) / self.frames as f64);
+    }
+}
+
+impl Engine {
+    /// Renders one image per entry of `times`, asking `frame_at` for each time's scene,
+    /// and hands each encoded image to `emit` (frame index, bytes) as soon as it is done.
+    /// Every CPU step runs on the pool under `control`'s lease; cancellation stops the job
+    /// within one wave.
+    pub fn render(
+        &self,
+        request: &RenderRequest,
+        times: &[Option<f64>],
+        frame_at: &(dyn Fn(Option<f64>) -> Result<FrameInput, JobError> + Sync),
+        control: &Control,
+        emit: &mut dyn FnMut(usize, Vec<u8>) -> Result<(), JobError>,
+    ) -> Result<RenderReport, JobError> {
+        request.check(self.limits(), times.len())?;
+        let t_all = Instant::now();
+        let (rays, batches) = request.work();
+        let mut frames = Vec::with_capacity(times.len());
+        for (k, &time) in times.iter().enumerate() {
+            let t0 = Instant::now();
+            let input = control.step(|| frame_at(time))??;
+            let evaluate_seconds = seconds_since(t0);
+            let g = &input.geometry;
+            let aspect = request.width as f64 / request.height as f64;
+            let bounds = crate::scene::bounds_of(&g.triangles);
+            let camera = ViewCamera::choose_from(&request.camera, &input.cameras, bounds, aspect)?;
+            let diagonal = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
+            let kind = self.resolve(
+                request.accel,
+                g,
+                request.build,
+                request.precision,
+                rays,
+                batches,
+            );
+            let prepared = control.step(|| {
+                self.structure(g, kind, request.build, request.precision, rays, batches)
+            })??;
+            let options = RenderOptions {
+                width: request.width,
+                height: request.height,
+                spp: request.spp,
+                integrator: request.integrator,
+                bounces: request.bounces,
+                seed: request.seed,
+            };
+            let waves = FrameWaves {
+                control,
+                frame: k,
+                frames: times.len(),
+            };
+            let t1 = Instant::now();
+            let (image, stats) = crate::render::render(
+                &g.triangles,
+                prepared.accel.as_ref(),
+                &camera,
+                &options,
+                diagonal,
+                &waves,
+            )?;
+            let render_seconds = seconds_since(t1);
+            let t2 = Instant::now();
+            let bytes = control.step(|| encode(&image, request.format))??;
+            let encode_seconds = seconds_since(t2);
+            emit(k, bytes)?;
+            frames.push(FrameTimes {
+                time,
+                evaluate_seconds,
+                prepare_seconds: prepared.build_seconds,
+                trace_seconds: stats.trace_seconds,
+                shade_seconds: (render_seconds - stats.trace_seconds).max(0.0),
+                encode_seconds,
+                accel: prepared.accel.name(),
+                structure: prepared.source,
+                rays: stats.rays,
+            });
+        }
+        control.progress(1.0);
+        Ok(RenderReport {
+            width: request.width,
+            height: request.height,
+            spp: request.spp,
+            integrator: request.integrator,
+            format: request.format,
+            threads: self.threads(),
+            rays: frames.iter().map(|f| f.rays).sum(),
+            build_seconds: frames.iter().map(|f| f.prepare_seconds).sum(),
+            trace_seconds: frames.iter().map(|f| f.trace_seconds).sum(),
+            render_seconds: seconds_since(t_all),
+            frames,
+        })
+    }
+}
+
+/// The times of `--frames START:END:STEP` (contract §4): START + k·STEP for k = 0 …
+/// ⌊(END − START)/STEP + 1e-9⌋.
+pub fn frame_times(start: f64, end: f64, step: f64, limit: usize) -> Result<Vec<f64>, JobError> {
+    let bad = |detail: &str| JobError::Invalid {
+        field: "frames",
+        detail: detail.to_string(),
+    };
+    if !(start.is_finite() && end.is_finite() && step.is_finite()) {
+        return Err(bad("start, end and step must be finite numbers"));
+    }
+    if step <= 0.0 {
+        return Err(bad("step must be positive"));
+    }
+    if end < start {
+        return Err(bad("end must not be before start"));
+    }
+    let k = ((end - start) / step + 1e-9).floor();
+    if k + 1.0 > limit as f64 {
+        return Err(JobError::Limit {
+            what: "frames",
+            value: (k + 1.0).min(u64::MAX as f64) as u64,
+            limit: limit as u64,
+        });
+    }
+    Ok((0..=k as usize).map(|i| start + i as f64 * step).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_times_follow_the_contract() {
+        assert_eq!(frame_times(0.0, 1.0, 0.5, 100).unwrap(), [0.0, 0.5, 1.0]);
+        // END included when it falls on a step, despite rounding.
+        assert_eq!(frame_times(0.0, 0.3, 0.1, 100).unwrap().len(), 4);
+        assert_eq!(frame_times(0.0, 0.95, 0.5, 100).unwrap(), [0.0, 0.5]);
+        assert!(frame_times(0.0, 1.0, 0.0, 100).is_err());
+        assert!(frame_times(1.0, 0.0, 0.1, 100).is_err());
+        assert!(matches!(
+            frame_times(0.0, 1e9, 1e-9, 100),
+            Err(JobError::Limit { what: "frames", .. })
+        ));
+    }
+
+    #[test]
+    fn limits_name_the_field() {
+        let l = Limits {
+            max_pixels: 100,
+            ..Limits::default()
+        };
+        let r = RenderRequest {
+            width: 20,
+            height: 20,
+            ..Default::default()
+        };
+        assert!(matches!(
+            r.check(&l, 1),
+            Err(JobError::Limit { what: "pixels", .. })
+        ));
+        let r = RenderRequest {
+            spp: 0,
+            ..Default::default()
+        };
+        assert!(matches!(
+            r.check(&Limits::default(), 1),
+            Err(JobError::Invalid { field: "spp", .. })
+        ));
+    }
+}

@@ -1,0 +1,293 @@
+//! The scheduler: a bounded queue ordered by priority, and the lease that hands the rayon
+//! pool to one step of one job at a time.
+//!
+//! Every job is admitted with a [`Ticket`] (priority 0–100 for jobs, [`SYNC_PRIORITY`] for
+//! synchronous traces, which wait ahead of everything; first come first served within a
+//! priority). Past `max_queued` admitted-but-not-started jobs, admission fails and the
+//! caller answers `503`. A job's CPU work runs in steps (a trace is one step; a render one
+//! step per wave), each under a [`Lease`]: the lease goes to the waiting ticket that ranks
+//! first, so a small trace that arrives during a render runs as soon as the render's
+//! current wave ends. Each step uses the whole pool; serialising steps keeps caches warm
+//! and answers the ranking exactly, where letting rayon interleave two jobs would make
+//! both slow.
+//!
+//! Waves are sized in seconds ([`Scheduler::wave_seconds`]): short while anything waits or
+//! an interactive request arrived within the last second (latency), long otherwise (DACRT
+//! and throughput like large batches).
+
+use std::collections::BTreeSet;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use super::{CancelToken, JobError};
+
+/// The priority of synchronous traces: above every job's 0–100.
+pub const SYNC_PRIORITY: u16 = 1000;
+
+/// Seconds a wave should take while other work waits (the latency a waiting small request
+/// sees is about one wave).
+pub const SHORT_WAVE_SECONDS: f64 = 0.01;
+/// Seconds a wave may take when nothing else waits.
+pub const LONG_WAVE_SECONDS: f64 = 0.5;
+
+/// How long after an interactive request waves stay short.
+const INTERACTIVE_WINDOW: Duration = Duration::from_secs(1);
+
+/// Rank in the lease queue: higher priority first, then earlier admission.
+type Rank = (std::cmp::Reverse<u16>, u64);
+
+#[derive(Default)]
+struct State {
+    /// Whether a step holds the pool.
+    held: bool,
+    /// Tickets waiting for the lease.
+    waiting: BTreeSet<Rank>,
+    /// Admitted tickets that have not held a lease yet.
+    queued: usize,
+    /// Tickets that have held a lease and are not finished.
+    running: usize,
+    next_seq: u64,
+    shutting_down: bool,
+    last_interactive: Option<Instant>,
+}
+
+/// The queue and the lease (see the module docs).
+pub struct Scheduler {
+    state: Mutex<State>,
+    wake: Condvar,
+    max_queued: usize,
+}
+
+impl Scheduler {
+    /// A scheduler that admits at most `max_queued` jobs waiting to start.
+    pub fn new(max_queued: usize) -> Arc<Scheduler> {
+        Arc::new(Scheduler {
+            state: Mutex::new(State::default()),
+            wake: Condvar::new(),
+            max_queued,
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A panic while holding this lock cannot leave the counters half-updated (every
+        // update is a single statement), so a poisoned lock is still consistent.
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Admits a job of `priority` (0–100, or [`SYNC_PRIORITY`]); `interactive` marks a
+    /// request a client waits for, which shortens running jobs' waves for a while.
+    pub fn admit(self: &Arc<Self>, priority: u16, interactive: bool) -> Result<Ticket, JobError> {
+        let mut s = self.lock();
+        if s.shutting_down {
+            return Err(JobError::ShuttingDown);
+        }
+        if s.queued >= self.max_queued {
+            return Err(JobError::QueueFull(s.queued));
+        }
+        s.queued += 1;
+        s.next_seq += 1;
+        if interactive {
+            s.last_interactive = Some(Instant::now());
+        }
+        Ok(Ticket {
+            sched: Arc::clone(self),
+            rank: (std::cmp::Reverse(priority), s.next_seq),
+            started: AtomicBool::new(false),
+        })
+    }
+
+    /// Re-admits a job found queued or running when the process started (recovery): it
+    /// bypasses the bound, since refusing it would lose acknowledged work.
+    pub fn readmit(self: &Arc<Self>, priority: u16) -> Ticket {
+        let mut s = self.lock();
+        s.queued += 1;
+        s.next_seq += 1;
+        Ticket {
+            sched: Arc::clone(self),
+            rank: (std::cmp::Reverse(priority), s.next_seq),
+            started: AtomicBool::new(false),
+        }
+    }
+
+    /// Waits until `ticket` ranks first among the waiting tickets and the pool is free,
+    /// then holds the pool until the lease is dropped. Fails if `cancel` fires while
+    /// waiting.
+    pub fn lease(&self, ticket: &Ticket, cancel: &CancelToken) -> Result<Lease<'_>, JobError> {
+        let mut s = self.lock();
+        s.waiting.insert(ticket.rank);
+        loop {
+            if !s.held && s.waiting.first() == Some(&ticket.rank) {
+                s.waiting.remove(&ticket.rank);
+                s.held = true;
+                if !ticket.started.swap(true, Ordering::AcqRel) {
+                    s.queued -= 1;
+                    s.running += 1;
+                }
+                return Ok(Lease { sched: self });
+            }
+            if cancel.is_cancelled() {
+                s.waiting.remove(&ticket.rank);
+                // Someone else may rank first now.
+                self.wake.notify_all();
+                return Err(JobError::Cancelled);
+            }
+            // Cancellation does not notify; poll it while waiting.
+            s = self
+                .wake
+                .wait_timeout(s, Duration::from_millis(20))
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        }
+    }
+
+    /// Seconds the next wave of a running job should take.
+    pub fn wave_seconds(&self) -> f64 {
+        let s = self.lock();
+        let recent = s
+            .last_interactive
+            .is_some_and(|t| t.elapsed() < INTERACTIVE_WINDOW);
+        if !s.waiting.is_empty() || recent {
+            SHORT_WAVE_SECONDS
+        } else {
+            LONG_WAVE_SECONDS
+        }
+    }
+
+    /// Admitted jobs that have not started.
+    pub fn queued(&self) -> usize {
+        self.lock().queued
+    }
+
+    /// Jobs that have started and not finished.
+    pub fn running(&self) -> usize {
+        self.lock().running
+    }
+
+    /// Refuses new work from now on ([`JobError::ShuttingDown`]).
+    pub fn shut_down(&self) {
+        self.lock().shutting_down = true;
+    }
+}
+
+/// A job's place in the scheduler; dropping it ends the job.
+pub struct Ticket {
+    sched: Arc<Scheduler>,
+    rank: Rank,
+    started: AtomicBool,
+}
+
+impl Ticket {
+    /// The scheduler that admitted this ticket.
+    pub fn scheduler(&self) -> &Arc<Scheduler> {
+        &self.sched
+    }
+
+    /// Waits for the pool (see [`Scheduler::lease`]).
+    pub fn lease(&self, cancel: &CancelToken) -> Result<Lease<'_>, JobError> {
+        self.sched.lease(self, cancel)
+    }
+}
+
+impl Drop for Ticket {
+    fn drop(&mut self) {
+        let mut s = self.sched.lock();
+        if self.started.load(Ordering::Acquire) {
+            s.running -= 1;
+        } else {
+            s.queued -= 1;
+        }
+    }
+}
+
+/// The pool, held by one step; dropping it hands the pool to the next waiting ticket.
+pub struct Lease<'a> {
+    sched: &'a Scheduler,
+}
+
+impl Drop for Lease<'_> {
+    fn drop(&mut self) {
+        self.sched.lock().held = false;
+        self.sched.wake.notify_all();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_queue_is_bounded_and_tickets_free_their_place() {
+        let s = Scheduler::new(2);
+        let a = s.admit(50, false).unwrap();
+        let _b = s.admit(50, false).unwrap();
+        assert!(matches!(s.admit(50, false), Err(JobError::QueueFull(2))));
+        drop(a);
+        assert!(s.admit(50, false).is_ok());
+    }
+
+    #[test]
+    fn a_started_job_leaves_the_queue() {
+        let s = Scheduler::new(1);
+        let a = s.admit(50, false).unwrap();
+        drop(a.lease(&CancelToken::new()).unwrap());
+        assert_eq!((s.queued(), s.running()), (0, 1));
+        let _b = s.admit(50, false).unwrap();
+        drop(a);
+        assert_eq!((s.queued(), s.running()), (1, 0));
+    }
+
+    #[test]
+    fn leases_go_by_priority_then_admission() {
+        let s = Scheduler::new(16);
+        let holder = s.admit(10, false).unwrap();
+        let lease = holder.lease(&CancelToken::new()).unwrap();
+        let order = Arc::new(Mutex::new(Vec::new()));
+        let mut threads = Vec::new();
+        // Admitted in this order; they must run as 90, 50 (first), 50 (second), 10.
+        for (name, p) in [("low", 10), ("mid1", 50), ("high", 90), ("mid2", 50)] {
+            let t = s.admit(p, false).unwrap();
+            let order = Arc::clone(&order);
+            threads.push(std::thread::spawn(move || {
+                let _l = t.lease(&CancelToken::new()).unwrap();
+                order.lock().unwrap().push(name);
+            }));
+            // Let each thread reach the wait before the next is admitted.
+            std::thread::sleep(Duration::from_millis(30));
+        }
+        drop(lease);
+        for t in threads {
+            t.join().unwrap();
+        }
+        assert_eq!(*order.lock().unwrap(), ["high", "mid1", "mid2", "low"]);
+    }
+
+    #[test]
+    fn a_cancelled_wait_returns() {
+        let s = Scheduler::new(4);
+        let a = s.admit(50, false).unwrap();
+        let _held = a.lease(&CancelToken::new()).unwrap();
+        let b = s.admit(50, false).unwrap();
+        let cancel = CancelToken::new();
+        let c2 = cancel.clone();
+        let waiter = std::thread::spawn(move || b.lease(&c2).map(|_| ()));
+        std::thread::sleep(Duration::from_millis(50));
+        cancel.cancel();
+        assert!(matches!(waiter.join().unwrap(), Err(JobError::Cancelled)));
+    }
+
+    #[test]
+    fn waves_shorten_while_work_waits() {
+        let s = Scheduler::new(4);
+        assert_eq!(s.wave_seconds(), LONG_WAVE_SECONDS);
+        let _t = s.admit(SYNC_PRIORITY, true).unwrap();
+        assert_eq!(s.wave_seconds(), SHORT_WAVE_SECONDS);
+    }
+
+    #[test]
+    fn shutting_down_refuses_work() {
+        let s = Scheduler::new(4);
+        s.shut_down();
+        assert!(matches!(s.admit(50, false), Err(JobError::ShuttingDown)));
+    }
+}

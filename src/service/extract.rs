@@ -1,0 +1,248 @@
+//! Extractors whose rejections are problem documents: `ApiJson`, `ApiQuery` and `ApiPath`
+//! replace axum's `Json`, `Query` and `Path`, whose rejections are plain text.
+//!
+//! Deserialising through `serde_path_to_error` tells which field failed (`frames.step`,
+//! `accel`), which goes into the problem's `field` member; for JSON the line and column go
+//! into `line` and `column`.
+
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{FromRequest, FromRequestParts, Request};
+use axum::http::request::Parts;
+use axum::http::{header, HeaderMap, StatusCode};
+use bytes::Bytes;
+use serde::de::DeserializeOwned;
+
+use super::error::ApiError;
+
+/// A JSON body (`Content-Type: application/json` or `…+json`), deserialised into `T`.
+/// Bodies are read under axum's default limit (2 MiB): JSON bodies here are options, never
+/// bulk data.
+#[derive(Debug, Clone)]
+pub struct ApiJson<T>(pub T);
+
+impl<T, S> FromRequest<S> for ApiJson<T>
+where
+    T: DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, ApiError> {
+        check_json_content_type(req.headers())?;
+        let bytes = Bytes::from_request(req, state)
+            .await
+            .map_err(bytes_rejection)?;
+        parse_json(&bytes).map(ApiJson)
+    }
+}
+
+/// Refuses a body that does not say it is JSON, with 415.
+fn check_json_content_type(headers: &HeaderMap) -> Result<(), ApiError> {
+    let accepted = ["application/json"];
+    let Some(ct) = headers.get(header::CONTENT_TYPE) else {
+        return Err(ApiError::unsupported_media_type(
+            "this route takes a JSON body: send `Content-Type: application/json`",
+            &accepted,
+        )
+        .with_field("Content-Type"));
+    };
+    let essence = ct
+        .to_str()
+        .ok()
+        .and_then(|s| s.split(';').next())
+        .map(|s| s.trim().to_ascii_lowercase());
+    match essence {
+        Some(e)
+            if e == "application/json"
+                || (e.starts_with("application/") && e.ends_with("+json")) =>
+        {
+            Ok(())
+        }
+        _ => Err(ApiError::unsupported_media_type(
+            format!(
+                "this route takes a JSON body, not `{}`",
+                String::from_utf8_lossy(ct.as_bytes())
+            ),
+            &accepted,
+        )
+        .with_field("Content-Type")),
+    }
+}
+
+/// Maps a failure to read the body: over the default limit is 413, anything else 400.
+fn bytes_rejection(r: BytesRejection) -> ApiError {
+    if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::payload_too_large(
+            "a JSON body may be at most 2 MiB (2097152 bytes)",
+            2 * 1024 * 1024,
+        )
+    } else {
+        ApiError::bad_request(format!(
+            "the request body could not be read: {}",
+            r.body_text()
+        ))
+    }
+}
+
+/// Deserialises a JSON document into `T`, naming the field and place of the first error.
+pub fn parse_json<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
+    let de = &mut serde_json::Deserializer::from_slice(bytes);
+    let value: T = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
+        let field = field_of(&e.path().to_string(), &e.inner().to_string());
+        json_error(e.inner(), field)
+    })?;
+    // Characters after the document are an error too.
+    de.end().map_err(|e| json_error(&e, None))?;
+    Ok(value)
+}
+
+/// The 400 for a JSON error, with its place.
+fn json_error(inner: &serde_json::Error, field: Option<String>) -> ApiError {
+    let what = match inner.classify() {
+        serde_json::error::Category::Syntax | serde_json::error::Category::Eof => {
+            "the body is not valid JSON"
+        }
+        _ => "the JSON body does not match this route's schema",
+    };
+    let mut err = ApiError::bad_request(match &field {
+        Some(f) => format!("{what}: {f}: {inner}"),
+        None => format!("{what}: {inner}"),
+    })
+    .with("line", inner.line())
+    .with("column", inner.column());
+    if let Some(f) = field {
+        err = err.with_field(f);
+    }
+    err
+}
+
+/// A query string deserialised into `T` (`serde_urlencoded`), naming the parameter that
+/// failed.
+#[derive(Debug, Clone)]
+pub struct ApiQuery<T>(pub T);
+
+impl<T, S> FromRequestParts<S> for ApiQuery<T>
+where
+    T: DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, ApiError> {
+        parse_query(parts.uri.query().unwrap_or("")).map(ApiQuery)
+    }
+}
+
+/// Deserialises a query string into `T`, naming the parameter of the first error.
+pub fn parse_query<T: DeserializeOwned>(query: &str) -> Result<T, ApiError> {
+    let de = serde_urlencoded::Deserializer::new(form_urlencoded::parse(query.as_bytes()));
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let inner = e.inner().to_string();
+        let field = field_of(&e.path().to_string(), &inner);
+        let mut err = ApiError::bad_request(match &field {
+            Some(f) => format!("query parameter `{f}`: {inner}"),
+            None => format!("the query string is not valid: {inner}"),
+        });
+        if let Some(f) = field {
+            err = err.with_field(f);
+        }
+        err
+    })
+}
+
+/// Path parameters deserialised into `T`. A path that does not parse names nothing, so it
+/// is 404 (contract: any id that names nothing is 404, whatever its form).
+#[derive(Debug, Clone)]
+pub struct ApiPath<T>(pub T);
+
+impl<T, S> FromRequestParts<S> for ApiPath<T>
+where
+    T: DeserializeOwned + Send,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        match axum::extract::Path::<T>::from_request_parts(parts, state).await {
+            Ok(axum::extract::Path(v)) => Ok(ApiPath(v)),
+            Err(e) => Err(ApiError::not_found(format!(
+                "{} names nothing: {}",
+                parts.uri.path(),
+                e.body_text()
+            ))),
+        }
+    }
+}
+
+/// The field an error is about: the deserialiser's path, extended by the name serde puts
+/// in backticks for unknown and missing fields (their path is the enclosing object).
+fn field_of(path: &str, message: &str) -> Option<String> {
+    let base = if path == "." || path.is_empty() {
+        None
+    } else {
+        Some(path.to_owned())
+    };
+    let named = ["unknown field `", "missing field `"]
+        .iter()
+        .find_map(|p| message.strip_prefix(p))
+        .and_then(|rest| rest.split('`').next())
+        .map(str::to_owned);
+    match (base, named) {
+        // An unknown field's path already ends with it; a missing one's is its parent.
+        (Some(b), Some(n)) if b == n || b.ends_with(&format!(".{n}")) => Some(b),
+        (Some(b), Some(n)) => Some(format!("{b}.{n}")),
+        (None, Some(n)) => Some(n),
+        (b, None) => b,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Frames {
+        start: f64,
+        end: f64,
+    }
+
+    #[derive(serde::Deserialize, Debug)]
+    #[serde(deny_unknown_fields)]
+    #[allow(dead_code)]
+    struct Body {
+        width: u32,
+        frames: Option<Frames>,
+    }
+
+    #[test]
+    fn json_errors_name_the_field() {
+        let e = parse_json::<Body>(br#"{"width": "wide"}"#).unwrap_err();
+        assert_eq!(e.extensions()["field"], "width");
+        let e = parse_json::<Body>(br#"{"width": 3, "frames": {"start": 0}}"#).unwrap_err();
+        assert_eq!(e.extensions()["field"], "frames.end");
+        let e = parse_json::<Body>(br#"{"width": 3, "colour": 1}"#).unwrap_err();
+        assert_eq!(e.extensions()["field"], "colour");
+        let e = parse_json::<Body>(b"{\"width\": 3,\n  oops}").unwrap_err();
+        assert_eq!(e.extensions()["line"], 2);
+        assert!(e.detail().contains("not valid JSON"), "{}", e.detail());
+        let e = parse_json::<Body>(br#"{"width": 3} {}"#).unwrap_err();
+        assert!(e.detail().contains("trailing"), "{}", e.detail());
+        assert_eq!(parse_json::<Body>(br#"{"width": 3}"#).unwrap().width, 3);
+    }
+
+    #[derive(serde::Deserialize, Debug)]
+    #[allow(dead_code)]
+    struct Q {
+        limit: Option<u32>,
+    }
+
+    #[test]
+    fn query_errors_name_the_parameter() {
+        let e = parse_query::<Q>("limit=lots").unwrap_err();
+        assert_eq!(e.extensions()["field"], "limit");
+        assert_eq!(parse_query::<Q>("limit=7").unwrap().limit, Some(7));
+        assert_eq!(parse_query::<Q>("").unwrap().limit, None);
+    }
+}

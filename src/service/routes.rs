@@ -1,0 +1,485 @@
+//! The domain routes of API v1 (contract §5): scenes, geometry versions, traces, renders
+//! and jobs. Each handler turns HTTP into a call of [`crate::app::App`] and its answer back
+//! into HTTP; none of them knows how rays are traced.
+
+use std::convert::Infallible;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::extract::{DefaultBodyLimit, State};
+use axum::http::{header, HeaderMap, HeaderValue, Method, StatusCode};
+use axum::response::sse::{Event, KeepAlive, Sse};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Json};
+use serde::Deserialize;
+use serde_json::json;
+
+use super::body::{read_body_limited, BodyReader};
+use super::error::ApiError;
+use super::extract::{ApiJson, ApiPath, ApiQuery};
+use super::{AppState, Routes};
+use crate::app::{App, AppError, JobEvents, RenderSpec, TraceParams, UploadKind};
+use crate::formats::binary::{BinaryError, Ray1Sink};
+use crate::jobs::JobError;
+use crate::store::StoreError;
+
+/// The media type of RAY1 and HIT1 bodies.
+const OCTET: &str = "application/octet-stream";
+/// The media type of TRI1 bodies.
+const TRI: &str = "application/x-rayd-tri";
+
+/// Every domain route, for [`super::router`].
+pub fn routes() -> Routes {
+    let unlimited = |r: axum::routing::MethodRouter<AppState>| r.layer(DefaultBodyLimit::disable());
+    Routes::new()
+        .method_router(
+            Method::POST,
+            "/v1/scenes",
+            unlimited(axum::routing::post(upload)),
+        )
+        .get("/v1/scenes", list_scenes)
+        .get("/v1/scenes/{id}", get_scene)
+        .delete("/v1/scenes/{id}", delete_scene)
+        .method_router(
+            Method::PUT,
+            "/v1/scenes/{id}/geometry",
+            unlimited(axum::routing::put(update_geometry)),
+        )
+        .method_router(
+            Method::POST,
+            "/v1/scenes/{id}/trace",
+            unlimited(axum::routing::post(trace)),
+        )
+        .post("/v1/scenes/{id}/render", render)
+        .get("/v1/jobs", list_jobs)
+        .get("/v1/jobs/{job}", get_job)
+        .delete("/v1/jobs/{job}", delete_job)
+        .get("/v1/jobs/{job}/events", job_events)
+        .get("/v1/jobs/{job}/result", job_result)
+}
+
+/// How a domain error is answered.
+impl From<AppError> for ApiError {
+    fn from(e: AppError) -> ApiError {
+        match e {
+            AppError::Store(s) => store_error(s),
+            AppError::Job(j) => job_error(j),
+            AppError::BadUpload {
+                detail,
+                byte_offset,
+            } => {
+                let e = ApiError::bad_request(detail);
+                match byte_offset {
+                    Some(o) => e.with("byte_offset", o),
+                    None => e,
+                }
+            }
+            AppError::BadParameter { field, detail } => {
+                ApiError::bad_request(format!("{field}: {detail}")).with_field(field)
+            }
+            AppError::Unprocessable { field, detail } => {
+                ApiError::unprocessable(format!("{field}: {detail}")).with_field(field)
+            }
+            AppError::NotReady(id) => ApiError::conflict(format!(
+                "job {id} has not succeeded (yet): its result is not ready"
+            )),
+            AppError::Internal(m) => ApiError::internal(m),
+        }
+    }
+}
+
+fn store_error(e: StoreError) -> ApiError {
+    match e {
+        StoreError::NotFound { what, id } => ApiError::not_found(format!("no {what} {id}")),
+        StoreError::BadPageToken => ApiError::bad_request(e.to_string()).with_field("page_token"),
+        StoreError::Invalid { field, reason } => {
+            ApiError::bad_request(format!("{field}: {reason}")).with_field(field)
+        }
+        StoreError::Conflict(m) => ApiError::conflict(m),
+        StoreError::Full { .. } => {
+            ApiError::insufficient_storage("the server's storage is full; nothing was stored")
+        }
+        other => ApiError::internal(other),
+    }
+}
+
+fn job_error(e: JobError) -> ApiError {
+    match e {
+        JobError::InvalidRays(bad) => ApiError::unprocessable(format!(
+            "{bad}; nothing was traced (send invalid=miss to answer them as misses)"
+        ))
+        .with("ray_index", bad.first_index)
+        .with("count", bad.count)
+        .with_field("rays"),
+        JobError::Limit {
+            what: "rays",
+            value,
+            limit,
+        } => {
+            ApiError::payload_too_large(format!("{value} rays exceed the limit of {limit}"), limit)
+        }
+        JobError::Limit { what, .. } => ApiError::unprocessable(e.to_string()).with_field(what),
+        JobError::Invalid { field, .. } => ApiError::unprocessable(e.to_string()).with_field(field),
+        JobError::Camera(c) => ApiError::unprocessable(c.to_string()).with_field("camera"),
+        JobError::QueueFull(_) => ApiError::unavailable(format!("{e}; try again later"), 1),
+        JobError::ShuttingDown => ApiError::unavailable("the service is shutting down", 5),
+        JobError::Cancelled => ApiError::conflict("the job was cancelled"),
+        other => ApiError::internal(other),
+    }
+}
+
+fn binary_error(e: BinaryError) -> ApiError {
+    let offset = match &e {
+        BinaryError::ShortHeader { len, .. } => Some(*len as u64),
+        BinaryError::WrongMagic { .. } => Some(0),
+        BinaryError::UnknownVersion { .. } => Some(4),
+        BinaryError::UnknownFormat { .. } => Some(6),
+        BinaryError::CountOverflow { .. } => Some(8),
+        BinaryError::WrongLength { .. } => Some(8),
+        BinaryError::TooMany { .. } => Some(8),
+        BinaryError::NonFiniteTriangle { offset, .. } => Some(*offset as u64),
+    };
+    let err = match &e {
+        BinaryError::TooMany { limit, .. } => ApiError::payload_too_large(e.to_string(), *limit),
+        _ => ApiError::bad_request(e.to_string()),
+    };
+    match offset {
+        Some(o) => err.with("byte_offset", o),
+        None => err,
+    }
+}
+
+/// The request's media type, checked against `accepted` (415 otherwise).
+fn media_type<'a>(headers: &HeaderMap, accepted: &[&'a str]) -> Result<&'a str, ApiError> {
+    let given = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+        .map(|v| {
+            v.split(';')
+                .next()
+                .unwrap_or("")
+                .trim()
+                .to_ascii_lowercase()
+        });
+    accepted
+        .iter()
+        .find(|a| given.as_deref() == Some(**a))
+        .copied()
+        .ok_or_else(|| {
+            ApiError::unsupported_media_type(
+                format!(
+                    "Content-Type {} is not accepted here (send one of: {})",
+                    given.as_deref().unwrap_or("(none)"),
+                    accepted.join(", ")
+                ),
+                accepted,
+            )
+        })
+}
+
+fn location(path: String) -> HeaderValue {
+    HeaderValue::from_str(&path).expect("ids are hex")
+}
+
+/// `POST /v1/scenes`.
+async fn upload(
+    State(state): State<AppState>,
+    Extension(app): Extension<App>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    let ct = media_type(&headers, &UploadKind::MEDIA_TYPES)?;
+    let kind = UploadKind::from_media_type(ct).expect("accepted");
+    let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
+    let (view, created) = app.upload(kind, body.bytes().to_vec(), None).await?;
+    drop(body);
+    let status = if created {
+        StatusCode::CREATED
+    } else {
+        StatusCode::OK
+    };
+    let mut resp = (status, Json(&view)).into_response();
+    resp.headers_mut().insert(
+        header::LOCATION,
+        location(format!("/v1/scenes/{}", view.id)),
+    );
+    Ok(resp)
+}
+
+/// Pagination parameters (AIP-158).
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct Page {
+    limit: Option<u32>,
+    page_token: Option<String>,
+}
+
+/// `GET /v1/scenes`.
+async fn list_scenes(
+    Extension(app): Extension<App>,
+    ApiQuery(page): ApiQuery<Page>,
+) -> Result<Response, ApiError> {
+    let (scenes, next) = app
+        .scenes(page.limit.unwrap_or(0), page.page_token.as_deref())
+        .await?;
+    // AIP-158: the last page's token is empty, not absent.
+    let next = next.unwrap_or_default();
+    Ok(Json(json!({"scenes": scenes, "next_page_token": next})).into_response())
+}
+
+/// `GET /v1/scenes/{id}`.
+async fn get_scene(
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    Ok(Json(app.scene(&id).await?).into_response())
+}
+
+/// `DELETE /v1/scenes/{id}`.
+async fn delete_scene(
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    app.delete_scene(&id).await?;
+    Ok(StatusCode::NO_CONTENT.into_response())
+}
+
+/// `PUT /v1/scenes/{id}/geometry`.
+async fn update_geometry(
+    State(state): State<AppState>,
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    media_type(&headers, &[TRI])?;
+    app.scene(&id).await?;
+    let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
+    let version = app.update_geometry(&id, body.bytes().to_vec()).await?;
+    Ok(Json(json!({"id": id, "version": version})).into_response())
+}
+
+/// Whether the client asked for an asynchronous answer (RFC 7240 `Prefer: respond-async`).
+fn prefers_async(headers: &HeaderMap) -> bool {
+    headers.get_all("prefer").iter().any(|v| {
+        v.to_str().is_ok_and(|s| {
+            s.split(',')
+                .any(|p| p.trim().eq_ignore_ascii_case("respond-async"))
+        })
+    })
+}
+
+/// `POST /v1/scenes/{id}/trace`.
+async fn trace(
+    State(state): State<AppState>,
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(params): ApiQuery<TraceParams>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    media_type(&headers, &[OCTET])?;
+    app.scene(&id).await?;
+    if prefers_async(&headers) {
+        let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
+        let view = app.submit_trace(&id, params, body.bytes().to_vec()).await?;
+        let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
+        resp.headers_mut()
+            .insert(header::LOCATION, location(format!("/v1/jobs/{}", view.id)));
+        return Ok(resp);
+    }
+    // Admitted before the body is read: a full queue answers at once.
+    let ticket = app.admit_trace()?;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
+    // The rays land in their final memory as the body arrives.
+    let mut sink = Ray1Sink::new(state.config.max_rays as usize, declared);
+    while let Some(chunk) = reader.next_chunk().await? {
+        sink.push(&chunk).map_err(binary_error)?;
+    }
+    let rays = sink.finish().map_err(binary_error)?;
+    let (hits, report) = app.trace(&id, &params, rays, ticket).await?;
+    drop(reader);
+    state
+        .metrics
+        .observe_trace(report.rays as u64, report.trace_seconds);
+    let mut resp = Response::new(Body::from(bytes::Bytes::from_owner(hits)));
+    let h = resp.headers_mut();
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(OCTET));
+    h.insert("x-rayd-accel", HeaderValue::from_static(report.accel));
+    h.insert(
+        "server-timing",
+        HeaderValue::from_str(&format!(
+            "build;dur={:.3}, trace;dur={:.3}",
+            report.build_seconds * 1e3,
+            report.trace_seconds * 1e3
+        ))
+        .expect("ascii"),
+    );
+    Ok(resp)
+}
+
+/// `POST /v1/scenes/{id}/render`.
+async fn render(
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+    headers: HeaderMap,
+    ApiJson(spec): ApiJson<RenderSpec>,
+) -> Result<Response, ApiError> {
+    let key = match headers.get("idempotency-key") {
+        None => None,
+        Some(v) => Some(
+            v.to_str()
+                .ok()
+                .filter(|s| !s.is_empty() && s.len() <= 255)
+                .ok_or_else(|| {
+                    ApiError::bad_request(
+                        "Idempotency-Key must be 1 to 255 visible ASCII characters",
+                    )
+                    .with_field("Idempotency-Key")
+                })?
+                .to_string(),
+        ),
+    };
+    let (view, _) = app.submit_render(&id, spec, key).await?;
+    let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
+    resp.headers_mut()
+        .insert(header::LOCATION, location(format!("/v1/jobs/{}", view.id)));
+    Ok(resp)
+}
+
+/// `GET /v1/jobs`.
+async fn list_jobs(
+    Extension(app): Extension<App>,
+    ApiQuery(page): ApiQuery<Page>,
+) -> Result<Response, ApiError> {
+    let (jobs, next) = app
+        .jobs(page.limit.unwrap_or(0), page.page_token.as_deref())
+        .await?;
+    // AIP-158: the last page's token is empty, not absent.
+    let next = next.unwrap_or_default();
+    Ok(Json(json!({"jobs": jobs, "next_page_token": next})).into_response())
+}
+
+/// `GET /v1/jobs/{job}`.
+async fn get_job(
+    Extension(app): Extension<App>,
+    ApiPath(job): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    Ok(Json(app.job(&job).await?).into_response())
+}
+
+/// `DELETE /v1/jobs/{job}`: cancels a queued or running job, deletes an ended one.
+async fn delete_job(
+    Extension(app): Extension<App>,
+    ApiPath(job): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    Ok(match app.cancel_or_delete(&job).await? {
+        Some(view) => Json(view).into_response(),
+        None => StatusCode::NO_CONTENT.into_response(),
+    })
+}
+
+/// `GET /v1/jobs/{job}/events`: the job object as Server-Sent Events each time it
+/// changes, until it ends (or the service shuts down).
+async fn job_events(
+    State(state): State<AppState>,
+    Extension(app): Extension<App>,
+    ApiPath(job): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    let events = app.job_events(&job).await?;
+    let shutdown = state.shutdown.clone();
+    let stream = async_stream(events, shutdown);
+    Ok(Sse::new(stream)
+        .keep_alive(KeepAlive::new().interval(Duration::from_secs(15)))
+        .into_response())
+}
+
+fn event_of(view: &crate::app::JobView) -> Event {
+    Event::default()
+        .event("job")
+        .json_data(view)
+        .expect("a job view serialises")
+}
+
+/// The events of a job as a stream: the state now, each change, the end.
+fn async_stream(
+    events: JobEvents,
+    shutdown: super::Shutdown,
+) -> impl futures_core::Stream<Item = Result<Event, Infallible>> {
+    let (tx, rx) = tokio::sync::mpsc::channel::<Event>(16);
+    tokio::spawn(async move {
+        match events {
+            JobEvents::Ended(view) => {
+                let _ = tx.send(event_of(&view)).await;
+            }
+            JobEvents::Live(mut rx) => loop {
+                let view = rx.borrow_and_update().clone();
+                if tx.send(event_of(&view)).await.is_err() || view.state.is_finished() {
+                    break;
+                }
+                tokio::select! {
+                    changed = rx.changed() => if changed.is_err() {
+                        // The job's thread is done: its last state was sent, or the job
+                        // was cancelled (its final view was sent by the canceller).
+                        let last = rx.borrow().clone();
+                        if last != view {
+                            let _ = tx.send(event_of(&last)).await;
+                        }
+                        break;
+                    },
+                    _ = shutdown.cancelled() => break,
+                }
+            },
+        }
+    });
+    tokio_stream_from(rx)
+}
+
+/// An mpsc receiver as a stream of `Ok` items.
+fn tokio_stream_from(
+    mut rx: tokio::sync::mpsc::Receiver<Event>,
+) -> impl futures_core::Stream<Item = Result<Event, Infallible>> {
+    futures_util::stream::poll_fn(move |cx| rx.poll_recv(cx).map(|o| o.map(Ok)))
+}
+
+/// `?frame=N` of the result route.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct FrameParam {
+    frame: Option<usize>,
+}
+
+/// `GET /v1/jobs/{job}/result`.
+async fn job_result(
+    Extension(app): Extension<App>,
+    ApiPath(job): ApiPath<String>,
+    ApiQuery(q): ApiQuery<FrameParam>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let (blob, content_type) = app.result(&job, q.frame).await?;
+    // The blob id is the content's hash: a strong validator.
+    let etag = format!("\"{blob}\"");
+    if headers
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.split(',').any(|t| t.trim() == etag || t.trim() == "*"))
+    {
+        let mut resp = StatusCode::NOT_MODIFIED.into_response();
+        resp.headers_mut()
+            .insert(header::ETAG, HeaderValue::from_str(&etag).expect("hex"));
+        return Ok(resp);
+    }
+    let bytes = app.store().get_blob(&blob).await.map_err(AppError::from)?;
+    let mut resp = Response::new(Body::from(bytes));
+    let h = resp.headers_mut();
+    h.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_str(&content_type).unwrap_or(HeaderValue::from_static(OCTET)),
+    );
+    h.insert(header::ETAG, HeaderValue::from_str(&etag).expect("hex"));
+    Ok(resp)
+}

@@ -1,0 +1,382 @@
+//! Jobs: submission (with idempotency keys), state changes, results and listings.
+//!
+//! Every state change is one transaction whose `UPDATE … WHERE state = …` checks the state
+//! it leaves, so two workers cannot both start a job and a cancelled job cannot succeed.
+//! A result's blobs are stored before `finish_job` commits the record naming them.
+
+use sqlx::sqlite::SqliteRow;
+use sqlx::{Row, SqliteConnection};
+
+use super::blob::BlobId;
+use super::error::{Result, StoreError};
+use super::records::{
+    check_job_id, check_json, decode_page_token, encode_page_token, job_from_row, new_job_id,
+    now_millis, page_size, JobOutcome, JobRecord, JobState, ListKind, Millis, NewJob, ResultBlob,
+};
+use super::scenes::check_label;
+use super::Store;
+
+macro_rules! job_cols {
+    () => {
+        "id, kind, scene_id, version, request, priority, state, progress, created_at, \
+         started_at, finished_at, stats, error, result_blob, result_type, idempotency_key, \
+         expires_at"
+    };
+}
+
+/// Attaches a job's frame results (only succeeded jobs have any).
+async fn with_frames(conn: &mut SqliteConnection, row: &SqliteRow) -> Result<JobRecord> {
+    let mut job = job_from_row(row)?;
+    if job.state == JobState::Succeeded {
+        job.result_frames = sqlx::query(
+            "SELECT blob, content_type FROM job_results WHERE job_id = ? ORDER BY frame",
+        )
+        .bind(&job.id)
+        .fetch_all(&mut *conn)
+        .await?
+        .iter()
+        .map(|r| {
+            Ok(ResultBlob {
+                blob: r.try_get("blob")?,
+                content_type: r.try_get("content_type")?,
+            })
+        })
+        .collect::<Result<_>>()?;
+    }
+    Ok(job)
+}
+
+impl Store {
+    /// Submits a job as `queued`. With an idempotency key that a job already has, returns
+    /// that job with `false` (a retried POST finds the first job), or
+    /// [`StoreError::Conflict`] if the retry asks for something else; a new job comes with
+    /// `true`.
+    pub async fn create_job(&self, new: NewJob) -> Result<(JobRecord, bool)> {
+        if new.priority > 100 {
+            return Err(StoreError::invalid(
+                "priority",
+                format!("{} is not in 0..=100", new.priority),
+            ));
+        }
+        check_json("request", &new.request)?;
+        if let Some(key) = &new.idempotency_key {
+            check_label("idempotency_key", key)?;
+        }
+        let scene = BlobId::parse_or_not_found(&new.scene_id, "scene")?;
+        let id = new_job_id()?;
+        let now = now_millis();
+        let mut conn = self.inner.writer.acquire().await?;
+        let mut tx = sqlx::Connection::begin(&mut *conn).await?;
+        if let Some(key) = &new.idempotency_key {
+            let row = sqlx::query(concat!(
+                "SELECT ",
+                job_cols!(),
+                " FROM jobs WHERE idempotency_key = ?"
+            ))
+            .bind(key)
+            .fetch_optional(&mut *tx)
+            .await?;
+            if let Some(row) = row {
+                let job = with_frames(&mut tx, &row).await?;
+                if job.kind != new.kind
+                    || job.scene_id != new.scene_id
+                    || job.version != new.version
+                    || job.request != new.request
+                {
+                    return Err(StoreError::Conflict(format!(
+                        "idempotency key {key:?} was used for job {} with a different request",
+                        job.id
+                    )));
+                }
+                return Ok((job, false));
+            }
+        }
+        let version_exists =
+            sqlx::query("SELECT 1 FROM scene_versions WHERE scene_id = ? AND version = ?")
+                .bind(scene.as_str())
+                .bind(new.version)
+                .fetch_optional(&mut *tx)
+                .await?
+                .is_some();
+        if !version_exists {
+            let scene_exists = sqlx::query("SELECT 1 FROM scenes WHERE id = ?")
+                .bind(scene.as_str())
+                .fetch_optional(&mut *tx)
+                .await?
+                .is_some();
+            return Err(if scene_exists {
+                StoreError::not_found("version", format!("{scene}/versions/{}", new.version))
+            } else {
+                StoreError::not_found("scene", scene.as_str())
+            });
+        }
+        let row = sqlx::query(concat!(
+            "INSERT INTO jobs (id, kind, scene_id, version, request, priority, state, progress, \
+             created_at, idempotency_key) VALUES (?, ?, ?, ?, ?, ?, 'queued', 0, ?, ?) \
+             RETURNING ",
+            job_cols!()
+        ))
+        .bind(&id)
+        .bind(new.kind.as_str())
+        .bind(scene.as_str())
+        .bind(new.version)
+        .bind(&new.request)
+        .bind(i64::from(new.priority))
+        .bind(now)
+        .bind(new.idempotency_key.as_deref())
+        .fetch_one(&mut *tx)
+        .await?;
+        let job = job_from_row(&row)?;
+        tx.commit().await?;
+        Ok((job, true))
+    }
+
+    /// A job by id, with its results.
+    pub async fn get_job(&self, id: &str) -> Result<JobRecord> {
+        check_job_id(id)?;
+        let mut conn = self.inner.reader.acquire().await?;
+        let row = sqlx::query(concat!("SELECT ", job_cols!(), " FROM jobs WHERE id = ?"))
+            .bind(id)
+            .fetch_optional(&mut *conn)
+            .await?
+            .ok_or_else(|| StoreError::not_found("job", id))?;
+        with_frames(&mut conn, &row).await
+    }
+
+    /// A page of jobs, oldest first, and the token of the next page (`None` on the last).
+    /// `limit` as for [`Store::list_scenes`].
+    pub async fn list_jobs(
+        &self,
+        limit: u32,
+        page_token: Option<&str>,
+    ) -> Result<(Vec<JobRecord>, Option<String>)> {
+        let n = page_size(limit);
+        let mut conn = self.inner.reader.acquire().await?;
+        let rows = match page_token {
+            None => {
+                sqlx::query(concat!(
+                    "SELECT ",
+                    job_cols!(),
+                    " FROM jobs ORDER BY created_at, id LIMIT ?"
+                ))
+                .bind(n + 1)
+                .fetch_all(&mut *conn)
+                .await?
+            }
+            Some(token) => {
+                let (t, id) = decode_page_token(ListKind::Jobs, token)?;
+                sqlx::query(concat!(
+                    "SELECT ",
+                    job_cols!(),
+                    " FROM jobs WHERE created_at > ? OR (created_at = ? AND id > ?) \
+                     ORDER BY created_at, id LIMIT ?"
+                ))
+                .bind(t)
+                .bind(t)
+                .bind(id)
+                .bind(n + 1)
+                .fetch_all(&mut *conn)
+                .await?
+            }
+        };
+        let more = rows.len() as i64 > n;
+        let mut jobs = Vec::with_capacity(rows.len());
+        for row in rows.iter().take(n as usize) {
+            jobs.push(with_frames(&mut conn, row).await?);
+        }
+        let next = if more {
+            jobs.last()
+                .map(|j| encode_page_token(ListKind::Jobs, j.created_at, &j.id))
+        } else {
+            None
+        };
+        Ok((jobs, next))
+    }
+
+    /// Every queued job, in the order a scheduler should take them: priority (highest
+    /// first), then age.
+    pub async fn queued_jobs(&self) -> Result<Vec<JobRecord>> {
+        sqlx::query(concat!(
+            "SELECT ",
+            job_cols!(),
+            " FROM jobs WHERE state = 'queued' ORDER BY priority DESC, created_at, id"
+        ))
+        .fetch_all(&self.inner.reader)
+        .await?
+        .iter()
+        .map(job_from_row)
+        .collect()
+    }
+
+    /// Marks a queued job running (a worker took it) and returns it.
+    pub async fn start_job(&self, id: &str) -> Result<JobRecord> {
+        check_job_id(id)?;
+        let row = sqlx::query(concat!(
+            "UPDATE jobs SET state = 'running', started_at = ?, progress = 0 \
+             WHERE id = ? AND state = 'queued' RETURNING ",
+            job_cols!()
+        ))
+        .bind(now_millis())
+        .bind(id)
+        .fetch_optional(&self.inner.writer)
+        .await?;
+        match row {
+            Some(row) => job_from_row(&row),
+            None => Err(self.wrong_state(id, "queued").await),
+        }
+    }
+
+    /// Records a running job's progress (0..=1).
+    pub async fn set_progress(&self, id: &str, progress: f64) -> Result<()> {
+        check_job_id(id)?;
+        if !(0.0..=1.0).contains(&progress) {
+            return Err(StoreError::invalid(
+                "progress",
+                format!("{progress} is not in 0..=1"),
+            ));
+        }
+        let n = sqlx::query("UPDATE jobs SET progress = ? WHERE id = ? AND state = 'running'")
+            .bind(progress)
+            .bind(id)
+            .execute(&self.inner.writer)
+            .await?
+            .rows_affected();
+        if n == 0 {
+            return Err(self.wrong_state(id, "running").await);
+        }
+        Ok(())
+    }
+
+    /// Ends a running job. A success names its result blobs, which must be stored already;
+    /// they and the new state commit together. The job then expires after `result_ttl`.
+    pub async fn finish_job(&self, id: &str, outcome: JobOutcome) -> Result<JobRecord> {
+        check_job_id(id)?;
+        let (state, stats, error, result, frames) = match outcome {
+            JobOutcome::Succeeded {
+                stats,
+                result,
+                frames,
+            } => (JobState::Succeeded, stats, None, result, frames),
+            JobOutcome::Failed { error, stats } => {
+                (JobState::Failed, stats, Some(error), None, Vec::new())
+            }
+        };
+        if let Some(stats) = &stats {
+            check_json("stats", stats)?;
+        }
+        for (_, content_type) in result.iter().chain(&frames) {
+            check_label("result content_type", content_type)?;
+        }
+        let blobs: Vec<BlobId> = result
+            .iter()
+            .chain(&frames)
+            .map(|(b, _)| b.clone())
+            .collect();
+        let _gate = self.inner.gc_gate.read().await;
+        self.require_blobs(blobs).await?;
+        let now = now_millis();
+        let expires = self.expiry(now);
+        let mut conn = self.inner.writer.acquire().await?;
+        let mut tx = sqlx::Connection::begin(&mut *conn).await?;
+        let row = sqlx::query(concat!(
+            "UPDATE jobs SET state = ?, finished_at = ?, expires_at = ?, stats = ?, error = ?, \
+             result_blob = ?, result_type = ?, \
+             progress = CASE WHEN ? = 'succeeded' THEN 1 ELSE progress END \
+             WHERE id = ? AND state = 'running' RETURNING ",
+            job_cols!()
+        ))
+        .bind(state.as_str())
+        .bind(now)
+        .bind(expires)
+        .bind(stats.as_deref())
+        .bind(error.as_deref())
+        .bind(result.as_ref().map(|(b, _)| b.as_str()))
+        .bind(result.as_ref().map(|(_, t)| t.as_str()))
+        .bind(state.as_str())
+        .bind(id)
+        .fetch_optional(&mut *tx)
+        .await?;
+        let Some(row) = row else {
+            drop(tx);
+            drop(conn);
+            return Err(self.wrong_state(id, "running").await);
+        };
+        for (frame, (blob, content_type)) in frames.iter().enumerate() {
+            sqlx::query(
+                "INSERT INTO job_results (job_id, frame, blob, content_type) VALUES (?, ?, ?, ?)",
+            )
+            .bind(id)
+            .bind(frame as i64)
+            .bind(blob.as_str())
+            .bind(content_type)
+            .execute(&mut *tx)
+            .await?;
+        }
+        let job = with_frames(&mut tx, &row).await?;
+        tx.commit().await?;
+        Ok(job)
+    }
+
+    /// Cancels a queued or running job; its record stays, as `cancelled`, until it expires
+    /// or is deleted. Cancelling an ended job is a [`StoreError::Conflict`].
+    pub async fn cancel_job(&self, id: &str) -> Result<JobRecord> {
+        check_job_id(id)?;
+        let now = now_millis();
+        let row = sqlx::query(concat!(
+            "UPDATE jobs SET state = 'cancelled', finished_at = ?, expires_at = ? \
+             WHERE id = ? AND state IN ('queued', 'running') RETURNING ",
+            job_cols!()
+        ))
+        .bind(now)
+        .bind(self.expiry(now))
+        .bind(id)
+        .fetch_optional(&self.inner.writer)
+        .await?;
+        match row {
+            Some(row) => job_from_row(&row),
+            None => Err(self.wrong_state(id, "queued or running").await),
+        }
+    }
+
+    /// Deletes an ended job and its results (their blobs go at the next GC). A queued or
+    /// running job must be cancelled first ([`StoreError::Conflict`]).
+    pub async fn delete_job(&self, id: &str) -> Result<()> {
+        check_job_id(id)?;
+        let n = sqlx::query(
+            "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
+        )
+        .bind(id)
+        .execute(&self.inner.writer)
+        .await?
+        .rows_affected();
+        if n == 0 {
+            return Err(self.wrong_state(id, "succeeded, failed or cancelled").await);
+        }
+        Ok(())
+    }
+
+    /// When a job finished at `now` expires.
+    fn expiry(&self, now: Millis) -> Option<Millis> {
+        self.inner
+            .options
+            .result_ttl
+            .map(|ttl| now.saturating_add(i64::try_from(ttl.as_millis()).unwrap_or(i64::MAX)))
+    }
+
+    /// The error for a state change that found no job in the state it needs: `NotFound` if
+    /// there is no such job, else a `Conflict` naming the state it is in.
+    async fn wrong_state(&self, id: &str, needed: &str) -> StoreError {
+        match sqlx::query("SELECT state FROM jobs WHERE id = ?")
+            .bind(id)
+            .fetch_optional(&self.inner.reader)
+            .await
+        {
+            Ok(None) => StoreError::not_found("job", id),
+            Ok(Some(row)) => match row.try_get::<String, _>(0) {
+                Ok(state) => StoreError::Conflict(format!("job {id} is {state}, not {needed}")),
+                Err(e) => e.into(),
+            },
+            Err(e) => e.into(),
+        }
+    }
+}

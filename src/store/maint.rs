@@ -1,0 +1,256 @@
+//! Upkeep: crash recovery, expiry of finished jobs, blob garbage collection and online
+//! backup.
+
+use std::collections::HashSet;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use sqlx::sqlite::SqliteConnectOptions;
+use sqlx::{Connection, Row, SqliteConnection};
+
+use super::blob::{create_dir_durable, sync_dir, BlobDir, BlobId};
+use super::error::{Result, StoreError};
+use super::records::{JobRecord, Millis};
+use super::{blocking, Store, DB_FILE};
+
+/// Every blob a record names: versions, single results and frame results.
+const REFERENCED_BLOBS: &str = "SELECT blob FROM scene_versions \
+     UNION SELECT result_blob FROM jobs WHERE result_blob IS NOT NULL \
+     UNION SELECT blob FROM job_results";
+
+/// What [`Store::gc`] did.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct GcReport {
+    /// Unreferenced blob files deleted.
+    pub deleted: u64,
+    /// Their bytes.
+    pub freed_bytes: u64,
+    /// Unreferenced blobs kept because they are younger than `gc_grace` (an upload whose
+    /// record may be about to commit).
+    pub kept_recent: u64,
+    /// Blobs still referenced.
+    pub referenced: u64,
+}
+
+/// What [`Store::backup`] wrote.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct BackupReport {
+    /// Blobs copied (every one the snapshot's records name).
+    pub blobs: u64,
+    /// Their bytes.
+    pub bytes: u64,
+}
+
+impl Store {
+    /// Run once at start, before any worker: jobs a crash left `running` go back to
+    /// `queued` (their `started_at` and progress cleared; the work is redone from the
+    /// start), in one transaction. Returns every queued job, those included, in scheduling
+    /// order, for the engine to queue again: nothing submitted is lost.
+    pub async fn recover(&self) -> Result<Vec<JobRecord>> {
+        sqlx::query(
+            "UPDATE jobs SET state = 'queued', started_at = NULL, progress = 0 \
+             WHERE state = 'running'",
+        )
+        .execute(&self.inner.writer)
+        .await?;
+        self.queued_jobs().await
+    }
+
+    /// Deletes the finished jobs (and their result records) whose `expires_at` is at or
+    /// before `now`, in one transaction; returns how many. Their blobs go at the next GC.
+    pub async fn expire(&self, now: Millis) -> Result<u64> {
+        Ok(sqlx::query(
+            "DELETE FROM jobs WHERE expires_at IS NOT NULL AND expires_at <= ? \
+             AND state IN ('succeeded', 'failed', 'cancelled')",
+        )
+        .bind(now)
+        .execute(&self.inner.writer)
+        .await?
+        .rows_affected())
+    }
+
+    /// Deletes blob files that no record names and that are older than `gc_grace`.
+    ///
+    /// Why this cannot race an upload: GC holds the GC gate exclusively from reading the
+    /// referenced set (one statement, one snapshot) to its last delete. Storing a blob and
+    /// committing a record that names one both hold the gate shared, and storing bytes that
+    /// exist renews the file's mtime. So for an upload of the same bytes, either GC ran
+    /// first (the file is gone, and the upload writes it again) or the upload ran first
+    /// (the file is young, or referenced, and GC keeps it). A record is committed only after
+    /// checking, under the gate, that its blobs exist; one that names a blob collected since
+    /// its upload (after more than `gc_grace`) fails with `NotFound` instead of dangling.
+    pub async fn gc(&self) -> Result<GcReport> {
+        let _gate = self.inner.gc_gate.write().await;
+        let referenced: HashSet<String> = sqlx::query(REFERENCED_BLOBS)
+            .fetch_all(&self.inner.reader)
+            .await?
+            .iter()
+            .map(|r| r.try_get::<String, _>(0))
+            .collect::<Result<_, _>>()?;
+        let blobs = Arc::clone(&self.inner.blobs);
+        let grace = self.inner.options.gc_grace;
+        blocking(&self.inner.dir, move || {
+            let now = SystemTime::now();
+            let mut report = GcReport {
+                referenced: referenced.len() as u64,
+                ..GcReport::default()
+            };
+            let mut touched = HashSet::new();
+            for (id, modified) in blobs.list()? {
+                if referenced.contains(id.as_str()) {
+                    continue;
+                }
+                // A clock step backwards makes the file look young: keep it.
+                let age = now.duration_since(modified).unwrap_or_default();
+                if age < grace {
+                    report.kept_recent += 1;
+                    continue;
+                }
+                let path = blobs.path(&id);
+                let freed = blobs.delete(&id)?;
+                if freed > 0 {
+                    report.deleted += 1;
+                    report.freed_bytes += freed;
+                    touched.insert(path.parent().map(Path::to_path_buf));
+                }
+            }
+            for dir in touched.into_iter().flatten() {
+                sync_dir(&dir)?;
+            }
+            Ok(report)
+        })
+        .await
+    }
+
+    /// Writes a consistent copy of the store to `dest` (a new or empty directory) while the
+    /// store stays in use: the database through SQLite's `VACUUM INTO` (one read snapshot),
+    /// then every blob that snapshot names, verified while copied. `dest` then opens as a
+    /// store. GC waits while a backup runs, so no blob of the snapshot vanishes mid-copy.
+    pub async fn backup(&self, dest: impl AsRef<Path>) -> Result<BackupReport> {
+        let _gate = self.inner.gc_gate.read().await;
+        let mut conn = self.inner.reader.acquire().await?;
+        backup_into(
+            &mut conn,
+            &self.inner.blobs.root,
+            &self.inner.dir,
+            dest.as_ref(),
+        )
+        .await
+    }
+
+    /// Backs up the store in `dir` from outside it, for `rayd backup`: through
+    /// [`Store::open`] and [`Store::backup`] when no process holds the store; else beside
+    /// the process that does, through a read-only connection (SQLite lets another process
+    /// read a WAL database). In that case that process's GC is not held off: if it
+    /// collects a blob the snapshot names during the copy (the blob became unreferenced
+    /// after the snapshot and is older than its grace period), the backup fails with
+    /// `NotFound` and can simply be run again.
+    pub async fn backup_dir(dir: impl AsRef<Path>, dest: impl AsRef<Path>) -> Result<BackupReport> {
+        let dir = dir.as_ref();
+        if !dir.join(DB_FILE).is_file() {
+            return Err(StoreError::not_found(
+                "store",
+                dir.join(DB_FILE).display().to_string(),
+            ));
+        }
+        match Store::open(dir, super::StoreOptions::default()).await {
+            Ok(store) => {
+                let report = store.backup(dest).await;
+                store.close().await;
+                report
+            }
+            Err(StoreError::Locked { .. }) => {
+                let mut conn = SqliteConnection::connect_with(
+                    &SqliteConnectOptions::new()
+                        .filename(dir.join(DB_FILE))
+                        .read_only(true),
+                )
+                .await?;
+                let report = backup_into(&mut conn, &dir.join("blobs"), dir, dest.as_ref()).await;
+                conn.close().await?;
+                report
+            }
+            Err(e) => Err(e),
+        }
+    }
+}
+
+/// The work of a backup, from a connection to the source database and its blobs.
+async fn backup_into(
+    conn: &mut SqliteConnection,
+    blobs_root: &Path,
+    dir: &Path,
+    dest: &Path,
+) -> Result<BackupReport> {
+    let dest = dest.to_path_buf();
+    match std::fs::read_dir(&dest) {
+        Ok(mut entries) => {
+            if entries.next().is_some() {
+                return Err(StoreError::invalid(
+                    "backup destination",
+                    format!("{} exists and is not empty", dest.display()),
+                ));
+            }
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(StoreError::io(&dest, e)),
+    }
+    let db = dest.join(DB_FILE);
+    let db_text = db.to_str().ok_or_else(|| {
+        StoreError::invalid(
+            "backup destination",
+            format!("{} is not valid UTF-8", dest.display()),
+        )
+    })?;
+    let blobs_dest = dest.join("blobs");
+    {
+        let b = blobs_dest.clone();
+        blocking(dir, move || create_dir_durable(&b)).await?;
+    }
+    // SQLite-specific (PostgreSQL would use pg_dump or a base backup).
+    sqlx::query("VACUUM INTO ?")
+        .bind(db_text)
+        .execute(&mut *conn)
+        .await?;
+    {
+        let (db, dest) = (db.clone(), dest.clone());
+        blocking(dir, move || {
+            std::fs::File::open(&db)
+                .and_then(|f| f.sync_all())
+                .map_err(|e| StoreError::io(&db, e))?;
+            sync_dir(&dest)
+        })
+        .await?;
+    }
+    let mut snapshot =
+        SqliteConnection::connect_with(&SqliteConnectOptions::new().filename(&db).read_only(true))
+            .await?;
+    let ids: Vec<String> = sqlx::query(REFERENCED_BLOBS)
+        .fetch_all(&mut snapshot)
+        .await?
+        .iter()
+        .map(|r| r.try_get::<String, _>(0))
+        .collect::<Result<_, _>>()?;
+    snapshot.close().await?;
+    let root = blobs_root.to_path_buf();
+    blocking(dir, move || {
+        // Only reads and copies: no `BlobDir::prepare`, which would remove the temporary
+        // files of a live writer in another process.
+        let source = BlobDir {
+            root,
+            quota: super::blob::Quota::new(None, 0),
+        };
+        let mut report = BackupReport::default();
+        for id in ids {
+            let id = BlobId::parse(&id).ok_or_else(|| StoreError::Corrupt {
+                blob: id.clone(),
+                detail: "a record names a blob id that is not 64 hex digits".into(),
+            })?;
+            report.bytes += source.copy_verified_to(&id, &blobs_dest)?;
+            report.blobs += 1;
+        }
+        Ok(report)
+    })
+    .await
+}

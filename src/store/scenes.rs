@@ -1,0 +1,270 @@
+//! Scenes and their versions: records naming uploaded blobs.
+//!
+//! A scene's id is its upload's blob id, so uploading the same bytes twice finds the same
+//! scene. Version 1 is the upload itself; [`Store::add_version`] appends TRI1 position blobs
+//! as versions 2, 3, … with the number allocated inside the inserting transaction.
+
+use sqlx::Row;
+
+use super::blob::BlobId;
+use super::error::{Result, StoreError};
+use super::records::{
+    check_json, decode_page_token, encode_page_token, now_millis, page_size, scene_from_row,
+    version_from_row, ListKind, SceneRecord, VersionRecord,
+};
+use super::Store;
+
+/// A scene to record, for an upload already stored as a blob.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NewScene {
+    /// The upload's blob (it becomes the scene id and version 1).
+    pub blob: BlobId,
+    /// The upload's MIME type.
+    pub content_type: String,
+    /// A name for listings, if the client gave one.
+    pub name: Option<String>,
+    /// JSON text: the fields of `rayd info` for this scene.
+    pub summary: String,
+}
+
+/// Longest accepted `name`, `content_type` or idempotency key: far above real use, low
+/// enough that a client cannot fill the database through them.
+pub(crate) const MAX_LABEL: usize = 1024;
+
+macro_rules! scene_cols {
+    () => {
+        "id, content_type, name, summary, created_at, latest_version"
+    };
+}
+
+pub(crate) fn check_label(field: &'static str, s: &str) -> Result<()> {
+    if s.is_empty() || s.len() > MAX_LABEL || s.chars().any(char::is_control) {
+        return Err(StoreError::invalid(
+            field,
+            format!("must be 1 to {MAX_LABEL} bytes without control characters"),
+        ));
+    }
+    Ok(())
+}
+
+impl Store {
+    /// Records a scene for an uploaded blob, in one transaction with its version 1. If the
+    /// scene exists already (the same bytes were uploaded before), returns it unchanged
+    /// with `false`; a new scene comes with `true`.
+    pub async fn create_scene(&self, new: NewScene) -> Result<(SceneRecord, bool)> {
+        check_label("content_type", &new.content_type)?;
+        if let Some(name) = &new.name {
+            check_label("name", name)?;
+        }
+        check_json("summary", &new.summary)?;
+        let _gate = self.inner.gc_gate.read().await;
+        self.require_blobs(vec![new.blob.clone()]).await?;
+        let now = now_millis();
+        let mut tx = self.inner.writer.begin().await?;
+        let inserted = sqlx::query(
+            "INSERT INTO scenes (id, content_type, name, summary, created_at, latest_version) \
+             VALUES (?, ?, ?, ?, ?, 1) ON CONFLICT (id) DO NOTHING",
+        )
+        .bind(new.blob.as_str())
+        .bind(&new.content_type)
+        .bind(&new.name)
+        .bind(&new.summary)
+        .bind(now)
+        .execute(&mut *tx)
+        .await?
+        .rows_affected()
+            == 1;
+        if inserted {
+            sqlx::query(
+                "INSERT INTO scene_versions (scene_id, version, blob, created_at) \
+                 VALUES (?, 1, ?, ?)",
+            )
+            .bind(new.blob.as_str())
+            .bind(new.blob.as_str())
+            .bind(now)
+            .execute(&mut *tx)
+            .await?;
+        }
+        let row = sqlx::query(concat!(
+            "SELECT ",
+            scene_cols!(),
+            " FROM scenes WHERE id = ?"
+        ))
+        .bind(new.blob.as_str())
+        .fetch_one(&mut *tx)
+        .await?;
+        let scene = scene_from_row(&row)?;
+        tx.commit().await?;
+        Ok((scene, inserted))
+    }
+
+    /// A scene by id.
+    pub async fn get_scene(&self, id: &str) -> Result<SceneRecord> {
+        let id = BlobId::parse_or_not_found(id, "scene")?;
+        let row = sqlx::query(concat!(
+            "SELECT ",
+            scene_cols!(),
+            " FROM scenes WHERE id = ?"
+        ))
+        .bind(id.as_str())
+        .fetch_optional(&self.inner.reader)
+        .await?
+        .ok_or_else(|| StoreError::not_found("scene", id.as_str()))?;
+        scene_from_row(&row)
+    }
+
+    /// A page of scenes, oldest first, and the token of the next page (`None` on the last).
+    /// `limit` 0 means [`super::DEFAULT_PAGE_SIZE`]; larger than
+    /// [`super::MAX_PAGE_SIZE`] is cut to it.
+    pub async fn list_scenes(
+        &self,
+        limit: u32,
+        page_token: Option<&str>,
+    ) -> Result<(Vec<SceneRecord>, Option<String>)> {
+        let n = page_size(limit);
+        let rows = match page_token {
+            None => {
+                sqlx::query(concat!(
+                    "SELECT ",
+                    scene_cols!(),
+                    " FROM scenes ORDER BY created_at, id LIMIT ?"
+                ))
+                .bind(n + 1)
+                .fetch_all(&self.inner.reader)
+                .await?
+            }
+            Some(token) => {
+                let (t, id) = decode_page_token(ListKind::Scenes, token)?;
+                sqlx::query(concat!(
+                    "SELECT ",
+                    scene_cols!(),
+                    " FROM scenes WHERE created_at > ? OR (created_at = ? AND id > ?) \
+                     ORDER BY created_at, id LIMIT ?"
+                ))
+                .bind(t)
+                .bind(t)
+                .bind(id)
+                .bind(n + 1)
+                .fetch_all(&self.inner.reader)
+                .await?
+            }
+        };
+        let mut scenes = rows
+            .iter()
+            .map(scene_from_row)
+            .collect::<Result<Vec<_>>>()?;
+        let next = if scenes.len() as i64 > n {
+            scenes.truncate(n as usize);
+            scenes
+                .last()
+                .map(|s| encode_page_token(ListKind::Scenes, s.created_at, &s.id))
+        } else {
+            None
+        };
+        Ok((scenes, next))
+    }
+
+    /// Adds a version naming `blob` (TRI1 positions, already stored) and returns it. The
+    /// number is the scene's latest plus one, allocated in the same transaction, so
+    /// concurrent adds get consecutive numbers.
+    pub async fn add_version(&self, scene_id: &str, blob: &BlobId) -> Result<VersionRecord> {
+        let scene = BlobId::parse_or_not_found(scene_id, "scene")?;
+        let _gate = self.inner.gc_gate.read().await;
+        self.require_blobs(vec![blob.clone()]).await?;
+        let now = now_millis();
+        let mut tx = self.inner.writer.begin().await?;
+        let version: i64 = sqlx::query(
+            "UPDATE scenes SET latest_version = latest_version + 1 WHERE id = ? \
+             RETURNING latest_version",
+        )
+        .bind(scene.as_str())
+        .fetch_optional(&mut *tx)
+        .await?
+        .ok_or_else(|| StoreError::not_found("scene", scene.as_str()))?
+        .try_get(0)?;
+        sqlx::query(
+            "INSERT INTO scene_versions (scene_id, version, blob, created_at) VALUES (?, ?, ?, ?)",
+        )
+        .bind(scene.as_str())
+        .bind(version)
+        .bind(blob.as_str())
+        .bind(now)
+        .execute(&mut *tx)
+        .await?;
+        tx.commit().await?;
+        Ok(VersionRecord {
+            scene_id: scene.to_string(),
+            version,
+            blob: blob.to_string(),
+            created_at: now,
+        })
+    }
+
+    /// One version of a scene.
+    pub async fn get_version(&self, scene_id: &str, version: i64) -> Result<VersionRecord> {
+        let scene = BlobId::parse_or_not_found(scene_id, "scene")?;
+        let row = sqlx::query(
+            "SELECT scene_id, version, blob, created_at FROM scene_versions \
+             WHERE scene_id = ? AND version = ?",
+        )
+        .bind(scene.as_str())
+        .bind(version)
+        .fetch_optional(&self.inner.reader)
+        .await?;
+        match row {
+            Some(row) => version_from_row(&row),
+            None => {
+                // Say which of the two is missing.
+                self.get_scene(scene.as_str()).await?;
+                Err(StoreError::not_found(
+                    "version",
+                    format!("{scene}/versions/{version}"),
+                ))
+            }
+        }
+    }
+
+    /// Every version of a scene, oldest first.
+    pub async fn list_versions(&self, scene_id: &str) -> Result<Vec<VersionRecord>> {
+        let scene = self.get_scene(scene_id).await?;
+        sqlx::query(
+            "SELECT scene_id, version, blob, created_at FROM scene_versions \
+             WHERE scene_id = ? ORDER BY version",
+        )
+        .bind(&scene.id)
+        .fetch_all(&self.inner.reader)
+        .await?
+        .iter()
+        .map(version_from_row)
+        .collect()
+    }
+
+    /// Deletes a scene with its versions and all its jobs (their results included), in one
+    /// transaction. Returns the ids of the deleted jobs that were still queued or running,
+    /// so the engine can stop them (their later updates find no job). The blobs go at the
+    /// next [`Store::gc`].
+    pub async fn delete_scene(&self, id: &str) -> Result<Vec<String>> {
+        let scene = BlobId::parse_or_not_found(id, "scene")?;
+        let mut tx = self.inner.writer.begin().await?;
+        let unfinished: Vec<String> = sqlx::query(
+            "SELECT id FROM jobs WHERE scene_id = ? AND state IN ('queued', 'running') \
+             ORDER BY created_at, id",
+        )
+        .bind(scene.as_str())
+        .fetch_all(&mut *tx)
+        .await?
+        .iter()
+        .map(|r| r.try_get(0))
+        .collect::<Result<_, _>>()?;
+        let deleted = sqlx::query("DELETE FROM scenes WHERE id = ?")
+            .bind(scene.as_str())
+            .execute(&mut *tx)
+            .await?
+            .rows_affected();
+        if deleted == 0 {
+            return Err(StoreError::not_found("scene", scene.as_str()));
+        }
+        tx.commit().await?;
+        Ok(unfinished)
+    }
+}

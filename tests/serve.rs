@@ -1,0 +1,377 @@
+//! End to end against a real `rayd serve` on loopback: uploads, traces compared byte for
+//! byte with `rayd trace`, render jobs polled to PNG and EXR with their events, cancellation,
+//! geometry versions, bad inputs with their status codes, persistence across a restart and
+//! a `kill -9` in the middle of a render.
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use rayd::formats::binary::{write_rays, write_tri};
+use rayd::geometry::{Ray, Triangle};
+
+#[path = "common/server.rs"]
+mod server;
+use server::{scenes, wait_job, Server, BIN};
+
+fn rays_at(bounds_min: [f32; 3], bounds_max: [f32; 3], n: usize) -> Vec<Ray> {
+    let c = [0, 1, 2].map(|i| 0.5 * (bounds_min[i] + bounds_max[i]));
+    let r = (0..3)
+        .map(|i| bounds_max[i] - bounds_min[i])
+        .fold(0.0f32, f32::max);
+    (0..n)
+        .map(|i| {
+            let a = i as f32 * 0.61803;
+            let b = i as f32 * 0.3137;
+            let org = [
+                c[0] + 2.0 * r * a.cos(),
+                c[1] + 0.3 * r * b.sin(),
+                c[2] + 2.0 * r * a.sin(),
+            ];
+            Ray {
+                org,
+                tmin: 0.0,
+                dir: [
+                    c[0] - org[0],
+                    c[1] - org[1] + 0.1 * r * b.cos(),
+                    c[2] - org[2],
+                ],
+                tmax: f32::INFINITY,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn the_service_end_to_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let s = Server::start(&data, &[]);
+
+    // Uploads: GLB twice (201 then 200, same id), TRI1.
+    let fox = scenes().join("Fox.glb");
+    let bytes = std::fs::read(&fox).unwrap();
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        &bytes,
+    );
+    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+    let scene = r.json();
+    let id = scene["id"].as_str().unwrap().to_string();
+    assert_eq!(
+        r.header("location"),
+        Some(format!("/v1/scenes/{id}").as_str())
+    );
+    assert_eq!(scene["version"], 1);
+    assert!(r.header("x-request-id").is_some());
+    let again = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        &bytes,
+    );
+    assert_eq!(again.status, 200);
+    assert_eq!(again.json()["id"], scene["id"]);
+    let tris: Vec<Triangle> = (0..10)
+        .map(|i| Triangle {
+            v: [
+                [i as f32, 0.0, 0.0],
+                [i as f32 + 1.0, 0.0, 0.0],
+                [i as f32, 1.0, 0.0],
+            ],
+        })
+        .collect();
+    let tri = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "application/x-rayd-tri")],
+        &write_tri(&tris),
+    );
+    assert_eq!(tri.status, 201);
+    assert_eq!(tri.json()["triangles"], 10);
+    let list = s.req("GET", "/v1/scenes?limit=1", &[], &[]).json();
+    assert_eq!(list["scenes"].as_array().unwrap().len(), 1);
+    assert!(list["next_page_token"].is_string());
+
+    // Traces: every query and hit format equals `rayd trace` on the same file.
+    let min: Vec<f32> = serde_json::from_value(scene["bounds"]["min"].clone()).unwrap();
+    let max: Vec<f32> = serde_json::from_value(scene["bounds"]["max"].clone()).unwrap();
+    let rays = rays_at([min[0], min[1], min[2]], [max[0], max[1], max[2]], 3000);
+    let ray_file = dir.path().join("rays.ray");
+    std::fs::write(&ray_file, write_rays(&rays)).unwrap();
+    let body = write_rays(&rays);
+    for (query, hit) in [
+        ("closest", "t_prim_uv"),
+        ("closest", "t_prim"),
+        ("closest", "t"),
+        ("any", "occluded"),
+    ] {
+        let out = dir.path().join(format!("{query}-{hit}.hit"));
+        let cli = Command::new(BIN)
+            .args(["trace"])
+            .arg(&fox)
+            .arg("--rays")
+            .arg(&ray_file)
+            .arg("--out")
+            .arg(&out)
+            .args(["--query", query, "--hit", hit, "--accel", "mbvh8"])
+            .output()
+            .unwrap();
+        assert!(cli.status.success());
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/trace?query={query}&hit={hit}&accel=mbvh8"),
+            &[("Content-Type", "application/octet-stream")],
+            &body,
+        );
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        assert_eq!(r.body, std::fs::read(&out).unwrap(), "{query} {hit}");
+        assert_eq!(r.header("x-rayd-accel"), Some("mbvh8"));
+        assert!(r.header("server-timing").unwrap().contains("trace;dur="));
+    }
+
+    // Bad inputs, each with its status and the place.
+    let trace_path = format!("/v1/scenes/{id}/trace");
+    let octet = [("Content-Type", "application/octet-stream")];
+    let r = s.req(
+        "POST",
+        &trace_path,
+        &[("Content-Type", "text/plain")],
+        &body,
+    );
+    assert_eq!(r.status, 415);
+    assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    let r = s.req("POST", &trace_path, &octet, &body[..body.len() - 5]);
+    assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.json()["byte_offset"], 8);
+    let mut bad = rays.clone();
+    bad[17].dir = [f32::NAN, 0.0, 0.0];
+    bad[40].dir = [0.0; 3];
+    let r = s.req("POST", &trace_path, &octet, &write_rays(&bad));
+    assert_eq!(r.status, 422);
+    let p = r.json();
+    assert_eq!(
+        (p["ray_index"].as_u64(), p["count"].as_u64()),
+        (Some(17), Some(2))
+    );
+    assert_eq!(p["instance"].as_str(), r.header("x-request-id"));
+    let r = s.req(
+        "POST",
+        &format!("{trace_path}?invalid=miss"),
+        &octet,
+        &write_rays(&bad),
+    );
+    assert_eq!(r.status, 200);
+    let r = s.req("POST", &format!("{trace_path}?accel=octree"), &octet, &body);
+    assert_eq!(r.status, 400);
+    assert_eq!(r.json()["field"], "accel");
+    let r = s.req("POST", "/v1/scenes/00ff/trace", &octet, &body);
+    assert_eq!(r.status, 404);
+    let r = s.req("GET", "/v1/scenes/..%2F..%2Fetc", &[], &[]);
+    assert_eq!(r.status, 404);
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        b"glTF not really",
+    );
+    assert_eq!(r.status, 400);
+    let r = s.req("GET", &format!("{trace_path}?version=7"), &[], &[]);
+    assert_eq!(r.status, 405);
+    let r = s.req("POST", &format!("{trace_path}?version=7"), &octet, &body);
+    assert_eq!(r.status, 404);
+
+    // Geometry versions: a new version answers differently, the old one still answers.
+    let n = scene["triangles"].as_u64().unwrap() as usize;
+    let wrong = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        &write_tri(&tris),
+    );
+    assert_eq!(
+        wrong.status,
+        422,
+        "{}",
+        String::from_utf8_lossy(&wrong.body)
+    );
+    let moved: Vec<Triangle> = vec![
+        Triangle {
+            v: [
+                [1e6, 1e6, 1e6],
+                [1e6 + 1.0, 1e6, 1e6],
+                [1e6, 1e6 + 1.0, 1e6]
+            ],
+        };
+        n
+    ];
+    let v2 = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        &write_tri(&moved),
+    );
+    assert_eq!(v2.status, 200, "{}", String::from_utf8_lossy(&v2.body));
+    assert_eq!(v2.json()["version"], 2);
+    let now = s.req("POST", &format!("{trace_path}?hit=occluded"), &octet, &body);
+    assert!(
+        now.body[16..].iter().all(|&b| b == 0),
+        "version 2 is far away"
+    );
+    let old = s.req(
+        "POST",
+        &format!("{trace_path}?version=1&hit=occluded"),
+        &octet,
+        &body,
+    );
+    assert!(old.body[16..].contains(&1));
+    let r = s.req(
+        "POST",
+        &format!("{trace_path}?version=2&time=0.5"),
+        &octet,
+        &body,
+    );
+    assert_eq!(r.status, 400);
+
+    // A render job polled to PNG, with its events; an EXR; a sequence of frames.
+    let render = |spec: &str| {
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/render"),
+            &[("Content-Type", "application/json")],
+            spec.as_bytes(),
+        );
+        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+        assert!(r.header("location").unwrap().starts_with("/v1/jobs/"));
+        r.json()["id"].as_str().unwrap().to_string()
+    };
+    let job = render(r#"{"width": 64, "height": 48, "version": 1}"#);
+    let j = wait_job(&s, &job, 60);
+    assert_eq!(j["state"], "succeeded", "{j}");
+    assert_eq!(j["progress"], 1.0);
+    let png = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    assert_eq!(png.status, 200);
+    assert_eq!(png.header("content-type"), Some("image/png"));
+    assert_eq!(&png.body[1..4], b"PNG");
+    let etag = png.header("etag").unwrap().to_string();
+    let cached = s.req(
+        "GET",
+        &format!("/v1/jobs/{job}/result"),
+        &[("If-None-Match", &etag)],
+        &[],
+    );
+    assert_eq!(cached.status, 304);
+    let ev = s.req("GET", &format!("/v1/jobs/{job}/events"), &[], &[]);
+    assert!(String::from_utf8_lossy(&ev.body).contains("\"succeeded\""));
+    let job =
+        render(r#"{"width": 32, "height": 32, "format": "exr", "version": 1, "integrator": "ao"}"#);
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    let exr = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    assert_eq!(exr.header("content-type"), Some("image/x-exr"));
+    assert_eq!(&exr.body[..4], &[0x76, 0x2f, 0x31, 0x01]);
+    let job = render(
+        r#"{"width": 16, "height": 16, "version": 1, "frames": {"start": 0, "end": 1, "step": 0.5}}"#,
+    );
+    let j = wait_job(&s, &job, 60);
+    assert_eq!(j["results"], 3, "{j}");
+    let f2 = s.req("GET", &format!("/v1/jobs/{job}/result?frame=2"), &[], &[]);
+    assert_eq!(f2.status, 200);
+    assert_eq!(
+        s.req("GET", &format!("/v1/jobs/{job}/result?frame=3"), &[], &[])
+            .status,
+        400
+    );
+
+    // Idempotency-Key: the retry finds the first job.
+    let k = [
+        ("Content-Type", "application/json"),
+        ("Idempotency-Key", "k-1"),
+    ];
+    let a = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &k,
+        br#"{"width": 8, "height": 8}"#,
+    );
+    let b = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &k,
+        br#"{"width": 8, "height": 8}"#,
+    );
+    assert_eq!(a.json()["id"], b.json()["id"]);
+
+    // Cancelling a running render: it stops within a wave and stays as cancelled.
+    let long = render(
+        r#"{"width": 512, "height": 512, "spp": 256, "integrator": "path", "version": 1, "priority": 10}"#,
+    );
+    let t0 = Instant::now();
+    while s.req("GET", &format!("/v1/jobs/{long}"), &[], &[]).json()["state"] != "running" {
+        assert!(t0.elapsed() < Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    // A small trace while the render runs is answered.
+    let small = s.req(
+        "POST",
+        &format!("{trace_path}?version=1"),
+        &octet,
+        &write_rays(&rays[..100]),
+    );
+    assert_eq!(small.status, 200);
+    let c = s.req("DELETE", &format!("/v1/jobs/{long}"), &[], &[]);
+    assert_eq!(c.status, 200);
+    assert_eq!(c.json()["state"], "cancelled");
+    let r = s.req("GET", &format!("/v1/jobs/{long}/result"), &[], &[]);
+    assert_eq!(r.status, 409);
+
+    // Persistence across a restart: scenes, versions and results.
+    s.stop();
+    let s = Server::start(&data, &[]);
+    assert_eq!(
+        s.req("GET", &format!("/v1/scenes/{id}"), &[], &[]).json()["version"],
+        2
+    );
+    let png2 = s.req("GET", &format!("/v1/jobs/{job}/result?frame=0"), &[], &[]);
+    assert_eq!(png2.status, 200);
+    let old = s.req(
+        "POST",
+        &format!("{trace_path}?version=1&hit=occluded"),
+        &octet,
+        &body,
+    );
+    assert!(old.body[16..].contains(&1));
+    assert_eq!(
+        s.req("GET", &format!("/v1/jobs/{long}"), &[], &[]).json()["state"],
+        "cancelled"
+    );
+
+    // A kill -9 during a render: after the restart the job runs again and finishes.
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        br#"{"width": 256, "height": 256, "spp": 64, "integrator": "path", "version": 1}"#,
+    );
+    let crashed = r.json()["id"].as_str().unwrap().to_string();
+    std::thread::sleep(Duration::from_millis(300));
+    let before = s
+        .req("GET", &format!("/v1/jobs/{crashed}"), &[], &[])
+        .json();
+    assert!(
+        before["state"] == "running" || before["state"] == "queued",
+        "the job must be unfinished at the kill: {before}"
+    );
+    s.kill9();
+    let s = Server::start(&data, &[]);
+    let j = wait_job(&s, &crashed, 120);
+    assert_eq!(j["state"], "succeeded", "{j}");
+    // A second server on the same directory refuses to start.
+    let second = Command::new(BIN)
+        .args(["serve", "--addr", "127.0.0.1:0", "--data-dir"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(!second.status.success());
+    s.stop();
+}
