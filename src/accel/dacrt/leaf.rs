@@ -12,10 +12,10 @@
 //! Both tests are the SIMD layer's scalar tests (`accel::triangle`) transposed to 8 rays × 1
 //! triangle with the *same operations in the same order* (no FMA), so `t` is bit-identical
 //! to what `brute` computes for the same pair, and the final `u, v` come from the layer's
-//! scalar test itself. The watertight t is the layer's `refined_t` (f64, for each lane
-//! whose error window meets the interval), called on the same inputs as in `brute`.
+//! scalar test itself. The reported t of a ray's final hit is the layer's
+//! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{refined_t64, window8, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -52,12 +52,12 @@ pub trait LeafTest: Copy + Send + Sync + 'static {
     /// `tri` (`t, u, v` only meaningful where the mask is set).
     fn hit8<S: Simd>(s: S, r: &Self::Lanes<S>, tri: &LeafTri, tmin: S::F8, tmax: S::F8) -> Hit8<S>;
 
-    /// The full hit (`t, u, v`) of `ray` on the triangle with vertices `v`, by the layer's
-    /// scalar test.
+    /// The full hit (`t, u, v`) of `ray` on the triangle with vertices `v` as a core
+    /// reports it: the layer's scalar test, then its reported t ([`TriTest::finish_t`]).
     fn full(ray: &Ray, v: [[f32; 3]; 3]) -> Option<(f32, f32, f32)> {
         let lane = Self::Scalar::lane_data(&Triangle { v });
         Self::Scalar::intersect_lane(&PreparedRay::new(ray), &lane, ray.tmax)
-            .map(|h| (h.t, h.u, h.v))
+            .map(|h| (Self::Scalar::finish_t(ray, &lane, h.t), h.u, h.v))
     }
 }
 
@@ -103,42 +103,6 @@ pub struct WtLanes<S: Simd> {
     org: [S::F8; 3],
     /// Shear `d[kx]/d[kz], d[ky]/d[kz], 1/d[kz]`.
     shear: [S::F8; 3],
-    /// Origins and directions, unpermuted, per lane, for `refined_t`: stored as arrays,
-    /// not vectors, so that they wait in memory for the rare refinement instead of
-    /// taking registers from the loop over a block's triangles.
-    ray1: [[[f32; 8]; 3]; 2],
-}
-
-/// The layer's `refined_t` for the lanes of `bits`, each with its own ray (NaN
-/// elsewhere): the same function on the same inputs as in `brute`, hence the same t.
-#[inline(never)]
-fn refined_t_rays8(
-    bits: u32,
-    ray: &[[[f32; 8]; 3]; 2],
-    tri: &LeafTri,
-    lo: &[f32; 8],
-    hi: &[f32; 8],
-) -> [f32; 8] {
-    let p = [
-        [tri.p[0][0], tri.p[0][1], tri.p[0][2]],
-        [tri.p[1][0], tri.p[1][1], tri.p[1][2]],
-        [tri.p[2][0], tri.p[2][1], tri.p[2][2]],
-    ];
-    let mut t = [f32::NAN; 8];
-    let mut rest = bits & 0xff;
-    while rest != 0 {
-        let lane = rest.trailing_zeros() as usize & 7;
-        rest &= rest - 1;
-        let f = |a: &[[f32; 8]; 3]| {
-            [
-                f64::from(a[0][lane]),
-                f64::from(a[1][lane]),
-                f64::from(a[2][lane]),
-            ]
-        };
-        t[lane] = refined_t64(f(&ray[0]), f(&ray[1]), &p, lo[lane], hi[lane]);
-    }
-    t
 }
 
 /// U, V, W in f64, rounded to f32, for the lanes of `zero` (the layer's fallback when one
@@ -186,18 +150,6 @@ impl LeafTest for Watertight {
             idx: [ikx, iky, ipick(0, 1, 2)],
             org: [okx, oky, pick(ox, oy, oz)],
             shear: [dkx / dkz, dky / dkz, s.splat_f8(1.0) / dkz],
-            ray1: [
-                [
-                    r.org[0].to_array(),
-                    r.org[1].to_array(),
-                    r.org[2].to_array(),
-                ],
-                [
-                    r.dir[0].to_array(),
-                    r.dir[1].to_array(),
-                    r.dir[2].to_array(),
-                ],
-            ],
         }
     }
 
@@ -247,17 +199,11 @@ impl LeafTest for Watertight {
             return Hit8::miss(inside, zero);
         }
         let det = u + v + w;
-        let (lo, hi) = window8(s, [sz * a_z, sz * b_z, sz * c_z]);
-        let cand = inside & det.ne(zero) & hi.ge(tmin) & lo.le(tmax);
-        let bits = cand.bitmask();
-        if bits == 0 {
-            return Hit8::miss(cand, zero);
-        }
-        let t = refined_t_rays8(bits, &r.ray1, tri, &lo.to_array(), &hi.to_array());
-        let t = s.load_f8(&t);
+        let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
+        let t = tt * rcp;
         Hit8 {
-            mask: cand & t.ge(tmin) & t.le(tmax),
+            mask: inside & det.ne(zero) & t.ge(tmin) & t.le(tmax),
             t,
             u: v * rcp,
             v: w * rcp,

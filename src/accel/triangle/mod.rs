@@ -18,9 +18,11 @@
 //! test runs at the end.
 //!
 //! Hit rules (contract §2): t in the closed `[tmin, tmax]`, no culling, a zero determinant
-//! never hits. The interval test is done on the *final* t (Möller–Trumbore's `T · (1/det)`,
-//! the watertight test's [`plane_t`]), not on `T` against `det·tmin`, so that a reported t
-//! always lies inside the ray's interval.
+//! never hits. The interval test is done on the *final* t (`T · (1/det)`), not on `T`
+//! against `det·tmin`, so that a reported t always lies inside the ray's interval.
+//! The watertight test then reports, for the one hit a query returns, a better-conditioned
+//! t ([`TriTest::finish_t`], [`refined_t`]); the decision and the `(t, id)` order use the
+//! test's own t, in every core alike.
 //! `tmin > tmax` is empty; [`PreparedRay::is_empty`] lets callers skip such rays, and the
 //! tests themselves never hit for them unless rounding collapses the interval (callers skip).
 //!
@@ -34,7 +36,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::{plane_t, refined_t, refined_t64, window1, window8, Watertight};
+pub use watertight::{refined_t, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};
@@ -90,6 +92,17 @@ impl PreparedRay {
         }
     }
 
+    /// The ray this was prepared from.
+    #[inline(always)]
+    pub fn ray(&self) -> Ray {
+        Ray {
+            org: self.org,
+            tmin: self.tmin,
+            dir: self.dir,
+            tmax: self.tmax,
+        }
+    }
+
     /// Whether the interval `[tmin, tmax]` is empty (or NaN): such rays miss everything.
     #[inline]
     pub fn is_empty(&self) -> bool {
@@ -115,9 +128,6 @@ pub struct PreparedRay8<S: Simd> {
     pub k: [usize; 3],
     /// Watertight shear (see [`PreparedRay::shear`]).
     pub shear: [S::F8; 3],
-    /// The ray's origin and direction, for the watertight t of the lanes whose depth
-    /// window meets the interval ([`refined_t`]).
-    pub ray1: [[f32; 3]; 2],
 }
 
 impl<S: Simd> Clone for PreparedRay8<S> {
@@ -142,7 +152,6 @@ impl<S: Simd> PreparedRay8<S> {
             tmin: s.splat_f8(r.tmin),
             k: r.k,
             shear: v(r.shear),
-            ray1: [r.org, r.dir],
         }
     }
 }
@@ -301,6 +310,18 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     /// The three points stored per triangle (see [`Tri8`]).
     fn lane_data(tri: &Triangle) -> [[f32; 3]; 3];
 
+    /// The t a query reports for the hit at the test's `t` on the triangle with lane data
+    /// `p`: called once per query, by every core at the place it writes its record (and by
+    /// [`intersect`]), never inside the search, so that hit decisions and the `(t, id)`
+    /// order stay the test's own. `ray` is the ray as given (its `tmax`, not a running
+    /// best). The identity for Möller–Trumbore; for the watertight test, [`refined_t`].
+    /// u and v are the test's.
+    #[inline(always)]
+    fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
+        let _ = (ray, p);
+        t
+    }
+
     /// Scalar test on one triangle given as [`TriTest::lane_data`], interval
     /// `[ray.tmin, tmax]`.
     fn intersect_lane(ray: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit>;
@@ -343,9 +364,30 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     }
 }
 
-/// The scalar test of `precision` on one triangle (a convenience for callers that hold a
-/// [`Precision`] value rather than a test type).
+/// The hit of `ray` on one triangle as a core reports it: the scalar test of `precision`,
+/// then [`TriTest::finish_t`] (a convenience for callers that hold a [`Precision`] value
+/// rather than a test type).
 pub fn intersect(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
+    fn go<T: TriTest>(ray: &Ray, tri: &Triangle) -> Option<TriHit> {
+        let r = PreparedRay::new(ray);
+        if r.is_empty() {
+            return None;
+        }
+        let h = T::intersect_triangle(&r, tri)?;
+        Some(TriHit {
+            t: T::finish_t(ray, &T::lane_data(tri), h.t),
+            ..h
+        })
+    }
+    match precision {
+        Precision::Fast => go::<MollerTrumbore>(ray, tri),
+        Precision::Watertight => go::<Watertight>(ray, tri),
+    }
+}
+
+/// The test's own hit of `ray` on one triangle, before [`TriTest::finish_t`]: what the
+/// cores decide and order by (tests compare the `(t, id)` order with it).
+pub fn intersect_unrefined(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
     let r = PreparedRay::new(ray);
     if r.is_empty() {
         return None;

@@ -128,7 +128,7 @@ fn conditioning(ray: &Ray, tri: &Triangle) -> Option<(f64, f64, f64)> {
 /// up to [`oracle_t_error`]):
 ///
 /// - `watertight`: `2^-24·|t*| + 2^-49·S·G·(L + |t*|)`: one f32 rounding of an f64 value
-///   ([`super::plane_t`]);
+///   ([`super::refined_t`]);
 /// - `fast`: `2^-24·|t*| + 2^-19·S·G·(L + |t*|)`: Möller–Trumbore in f32, whose error
 ///   grows with the distance of the triangle's corner from the origin and its size.
 ///
@@ -172,11 +172,30 @@ pub fn uv_bound(precision: Precision, ray: &Ray, tri: &Triangle) -> f64 {
 /// what a comparison with the oracle must add to [`t_bound`]. Far below it except for
 /// slivers and grazing rays.
 pub fn oracle_t_error(ray: &Ray, tri: &Triangle) -> f64 {
+    sheared_t_error(ray, tri, f64::EPSILON / 2.0, 1.0)
+}
+
+/// The written bound on `|t - t*|` for the t a core *decides and orders by* (the test's
+/// own t, before [`super::TriTest::finish_t`]): for `watertight`, the paper's sheared f32
+/// t, whose error grows with the vertices' depths along the ray (pbrt-v3's analysis of
+/// the test, carried out for f32 and with a factor 2 to spare); for `fast`, [`t_bound`]
+/// (its reported t is the one it orders by). Two hits whose exact t differ by less than
+/// the sum of their bounds may be ordered either way (proto/semantics.md, "Error bounds").
+pub fn order_t_bound(precision: Precision, ray: &Ray, tri: &Triangle, t_exact: f64) -> f64 {
+    match precision {
+        Precision::Fast => t_bound(precision, ray, tri, t_exact),
+        Precision::Watertight => sheared_t_error(ray, tri, 2f64.powi(-24), 2.0),
+    }
+}
+
+/// The pbrt-v3 style error bound of the sheared watertight t computed with unit roundoff
+/// `u`, with its terms evaluated in f64 from the stored f32 values; `q` roundings in the
+/// final quotient (1 for a division, 2 for the f32 test's reciprocal and product).
+fn sheared_t_error(ray: &Ray, tri: &Triangle, u: f64, q: f64) -> f64 {
     let r = PreparedRay::new(ray);
     let [kx, ky, kz] = r.k;
     let d = ray.dir.map(f64::from);
     let (sx, sy, sz) = (d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
-    let u = f64::EPSILON / 2.0;
     let gamma = |n: f64| n * u / (1.0 - n * u);
     let (mut xm, mut ym, mut zm, mut rz) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     let mut p = [[0.0f64; 3]; 3];
@@ -206,5 +225,5 @@ pub fn oracle_t_error(ray: &Ray, tri: &Triangle) -> f64 {
     let de = 2.0 * (gamma(2.0) * xm * ym + dy * xm + dx * ym);
     let dt = 3.0 * (gamma(3.0) * em * zm + de * zm + dz * em);
     let ddet = 3.0 * de + gamma(2.0) * 3.0 * em;
-    2.0 * ((dt + (tt / det).abs() * ddet) / det + u * (tt / det).abs())
+    2.0 * ((dt + (tt / det).abs() * ddet) / det + q * u * (tt / det).abs())
 }
