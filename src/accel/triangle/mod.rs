@@ -243,9 +243,19 @@ impl<T: TriTest> Tri8<T> {
     }
 
     /// Lane `lane`'s data as the scalar test takes it (`p[i][axis]`).
+    ///
+    /// Nine loads, spelled out: `array::map` on `self.p` copied the whole pack (a
+    /// `memcpy` of 288 bytes) and ran out of line, which callgrind showed costing more
+    /// than the watertight t's refinement itself.
     #[inline(always)]
     pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
-        self.p.map(|pt| pt.map(|axis| axis[lane]))
+        let p = &self.p;
+        let l = lane & 7;
+        [
+            [p[0][0][l], p[0][1][l], p[0][2][l]],
+            [p[1][0][l], p[1][1][l], p[1][2][l]],
+            [p[2][0][l], p[2][1][l], p[2][2][l]],
+        ]
     }
 
     /// The contract's closest among the lanes set in `bits` (an 8-wide hit mask as
