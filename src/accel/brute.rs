@@ -93,7 +93,7 @@ impl<T: TriTest> Kernel for Chunk<'_, T> {
             Out::Hits(Query::Any, hits) => {
                 for (ray, hit) in self.rays.iter().zip(hits) {
                     *hit = match first_hit(s, packs, ray) {
-                        Some((r, p, lane)) => fields(&r, &packs[p], lane),
+                        Some((r, p, lane)) => fields(ray, &r, &packs[p], lane),
                         None => Hit::MISS,
                     };
                 }
@@ -108,12 +108,13 @@ impl<T: TriTest> Kernel for Chunk<'_, T> {
 }
 
 /// The hit record of lane `lane` of `pack`, from the scalar test (bit-identical to the
-/// 8-wide one that found it).
+/// 8-wide one that found it) and the test's [`TriTest::finish_t`]: the one place where
+/// `brute` writes a hit.
 #[inline]
-fn fields<T: TriTest>(r: &PreparedRay, pack: &Tri8<T>, lane: usize) -> Hit {
+fn fields<T: TriTest>(ray: &Ray, r: &PreparedRay, pack: &Tri8<T>, lane: usize) -> Hit {
     match T::intersect1(r, pack, lane, r.tmax) {
         Some(h) => Hit {
-            t: h.t,
+            t: T::finish_t(ray, &pack.lane(lane), h.t),
             prim: pack.ids[lane],
             u: h.u,
             v: h.v,
@@ -167,7 +168,7 @@ fn closest<S: Simd, T: TriTest>(s: S, packs: &[Tri8<T>], ray: &Ray) -> Hit {
             }
         }
     }
-    fields(&r, &packs[ps[win] as usize], win)
+    fields(ray, &r, &packs[ps[win] as usize], win)
 }
 
 /// The first hit in pack order: `(prepared ray, pack index, lane)`.

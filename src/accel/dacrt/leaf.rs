@@ -12,7 +12,8 @@
 //! Both tests are the SIMD layer's scalar tests (`accel::triangle`) transposed to 8 rays × 1
 //! triangle with the *same operations in the same order* (no FMA), so `t` is bit-identical
 //! to what `brute` computes for the same pair, and the final `u, v` come from the layer's
-//! scalar test itself.
+//! scalar test itself. The reported t of a ray's final hit is the layer's
+//! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
 use crate::accel::triangle::{MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
@@ -51,12 +52,12 @@ pub trait LeafTest: Copy + Send + Sync + 'static {
     /// `tri` (`t, u, v` only meaningful where the mask is set).
     fn hit8<S: Simd>(s: S, r: &Self::Lanes<S>, tri: &LeafTri, tmin: S::F8, tmax: S::F8) -> Hit8<S>;
 
-    /// The full hit (`t, u, v`) of `ray` on the triangle with vertices `v`, by the layer's
-    /// scalar test.
+    /// The full hit (`t, u, v`) of `ray` on the triangle with vertices `v` as a core
+    /// reports it: the layer's scalar test, then its reported t ([`TriTest::finish_t`]).
     fn full(ray: &Ray, v: [[f32; 3]; 3]) -> Option<(f32, f32, f32)> {
         let lane = Self::Scalar::lane_data(&Triangle { v });
         Self::Scalar::intersect_lane(&PreparedRay::new(ray), &lane, ray.tmax)
-            .map(|h| (h.t, h.u, h.v))
+            .map(|h| (Self::Scalar::finish_t(ray, &lane, h.t), h.u, h.v))
     }
 }
 

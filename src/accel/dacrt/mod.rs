@@ -38,6 +38,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::bvh::RefitError;
+use super::triangle::TriTest;
 use super::{AccelError, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
 
@@ -192,10 +193,18 @@ impl Dacrt {
             }
         }
         if finish {
-            // Slots that found nothing become the contract's miss record.
-            hits.par_iter_mut().for_each(|h| {
+            // Slots that found nothing become the contract's miss record; the others get
+            // the reported t of their hit (`TriTest::finish_t`, the one place where DACRT
+            // writes a final record), from the triangle rebuilt exactly from the precompute.
+            let refines = T::PRECISION == Precision::Watertight;
+            hits.par_iter_mut().zip(rays.par_iter()).for_each(|(h, r)| {
                 if h.prim == u32::MAX {
                     *h = Hit::MISS;
+                } else if refines {
+                    let i = h.prim as usize;
+                    let v = tris::decode(&self.tris.boxes[i], &self.tris.extra[i]);
+                    let p = T::Scalar::lane_data(&Triangle { v });
+                    h.t = T::Scalar::finish_t(r, &p, h.t);
                 }
             });
         }

@@ -154,7 +154,13 @@ where
             }
             Out::Hits(Query::Any, hits) => {
                 for (ray, hit) in self.rays.iter().zip(hits) {
-                    *hit = traverse::any(s, tree, ray, &mut stack).unwrap_or(Hit::MISS);
+                    *hit = match traverse::any(s, tree, ray, &mut stack) {
+                        Some((h, p)) => Hit {
+                            t: T::finish_t(ray, &p, h.t),
+                            ..h
+                        },
+                        None => Hit::MISS,
+                    };
                 }
             }
             Out::Occluded(out) => {

@@ -144,6 +144,8 @@ where
     let mut best_t = br.tmax;
     let mut best_id = u32::MAX;
     let (mut best_u, mut best_v) = (0.0f32, 0.0f32);
+    // The winner's pack and lane, for its reported t (`TriTest::finish_t`).
+    let (mut best_p, mut best_lane) = (0usize, 0usize);
     let mut tmax8 = s.splat_f8(best_t);
     let mut sp = 0usize;
     let mut cur: i32 = 0;
@@ -233,6 +235,7 @@ where
                 }
                 if let Some(lane) = win {
                     (best_u, best_v) = (u.to_array()[lane], v.to_array()[lane]);
+                    (best_p, best_lane) = (p, lane);
                 }
                 tmax8 = s.splat_f8(best_t);
                 if rest == 0 {
@@ -258,22 +261,25 @@ where
     if best_id == u32::MAX {
         return Hit::MISS;
     }
+    let Pack(pack) = &packs[best_p];
     Hit {
-        t: best_t,
+        t: T::finish_t(ray, &pack.lane(best_lane), best_t),
         prim: best_id,
         u: best_u,
         v: best_v,
     }
 }
 
-/// Some hit of `ray` in its interval: the first one found.
+/// Some hit of `ray` in its interval: the first one found, with the test's t, and the
+/// lane data of its triangle (for [`TriTest::finish_t`], which the `any` query applies
+/// and an occlusion query, which needs no t, does not).
 #[inline(always)]
 pub fn any<S: Simd, T: TriTest, const N: usize>(
     s: S,
     tree: &TravTree<N, T>,
     ray: &Ray,
     stack: &mut Stack,
-) -> Option<Hit>
+) -> Option<(Hit, [[f32; 3]; 3])>
 where
     Lanes<N>: SlabTest<N>,
 {
@@ -310,12 +316,13 @@ where
                 let bits = m.bitmask() & lanes;
                 if bits != 0 {
                     let lane = bits.trailing_zeros() as usize & 7;
-                    return Some(Hit {
+                    let hit = Hit {
                         t: t.to_array()[lane],
                         prim: pack.ids[lane],
                         u: u.to_array()[lane],
                         v: v.to_array()[lane],
-                    });
+                    };
+                    return Some((hit, pack.lane(lane)));
                 }
                 if rest == 0 {
                     break;

@@ -53,6 +53,8 @@ pub fn packet<S: Simd, T: TriTest>(
     let mut best_t = [br[0].tmax, br[1].tmax, br[2].tmax, br[3].tmax];
     let mut best_id = [u32::MAX; PACKET];
     let mut best_uv = [(0.0f32, 0.0f32); PACKET];
+    // Each winner's pack and lane, for its reported t (`TriTest::finish_t`).
+    let mut best_at = [(0usize, 0usize); PACKET];
     if active != 0 {
         // Scalar gathers; the vector loads stay in the kernel's own code.
         let col = |f: fn(&BoxRay) -> f32| [f(&br[0]), f(&br[1]), f(&br[2]), f(&br[3])];
@@ -102,7 +104,8 @@ pub fn packet<S: Simd, T: TriTest>(
             if node.pack == 0 {
                 continue;
             }
-            let pack = &packs[node.pack as usize - 1];
+            let pack_index = node.pack as usize - 1;
+            let pack = &packs[pack_index];
             let mut changed = false;
             while hit != 0 {
                 let lane = hit.trailing_zeros() as usize & 3;
@@ -134,6 +137,7 @@ pub fn packet<S: Simd, T: TriTest>(
                 }
                 if let Some(j) = win {
                     best_uv[lane] = (u.to_array()[j], v.to_array()[j]);
+                    best_at[lane] = (pack_index, j);
                 }
             }
             if active == 0 {
@@ -153,8 +157,9 @@ pub fn packet<S: Simd, T: TriTest>(
             *h = if best_id[i] == u32::MAX {
                 Hit::MISS
             } else {
+                let (p, j) = best_at[i];
                 Hit {
-                    t: best_t[i],
+                    t: T::finish_t(&rays[i], &tree.packs[p].lane(j), best_t[i]),
                     prim: best_id[i],
                     u: best_uv[i].0,
                     v: best_uv[i].1,

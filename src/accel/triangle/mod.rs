@@ -20,6 +20,9 @@
 //! Hit rules (contract §2): t in the closed `[tmin, tmax]`, no culling, a zero determinant
 //! never hits. The interval test is done on the *final* t (`T · (1/det)`), not on `T`
 //! against `det·tmin`, so that a reported t always lies inside the ray's interval.
+//! The watertight test then reports, for the one hit a query returns, a better-conditioned
+//! t ([`TriTest::finish_t`], [`refined_t`]); the decision and the `(t, id)` order use the
+//! test's own t, in every core alike.
 //! `tmin > tmax` is empty; [`PreparedRay::is_empty`] lets callers skip such rays, and the
 //! tests themselves never hit for them unless rounding collapses the interval (callers skip).
 //!
@@ -33,7 +36,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::Watertight;
+pub use watertight::{refined_t, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};
@@ -86,6 +89,17 @@ impl PreparedRay {
             tmax: ray.tmax,
             k: [kx, ky, kz],
             shear: [d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]],
+        }
+    }
+
+    /// The ray this was prepared from.
+    #[inline(always)]
+    pub fn ray(&self) -> Ray {
+        Ray {
+            org: self.org,
+            tmin: self.tmin,
+            dir: self.dir,
+            tmax: self.tmax,
         }
     }
 
@@ -229,9 +243,19 @@ impl<T: TriTest> Tri8<T> {
     }
 
     /// Lane `lane`'s data as the scalar test takes it (`p[i][axis]`).
+    ///
+    /// Nine loads, spelled out: `array::map` on `self.p` copied the whole pack (a
+    /// `memcpy` of 288 bytes) and ran out of line, which callgrind showed costing more
+    /// than the watertight t's refinement itself.
     #[inline(always)]
     pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
-        self.p.map(|pt| pt.map(|axis| axis[lane]))
+        let p = &self.p;
+        let l = lane & 7;
+        [
+            [p[0][0][l], p[0][1][l], p[0][2][l]],
+            [p[1][0][l], p[1][1][l], p[1][2][l]],
+            [p[2][0][l], p[2][1][l], p[2][2][l]],
+        ]
     }
 
     /// The contract's closest among the lanes set in `bits` (an 8-wide hit mask as
@@ -296,6 +320,18 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     /// The three points stored per triangle (see [`Tri8`]).
     fn lane_data(tri: &Triangle) -> [[f32; 3]; 3];
 
+    /// The t a query reports for the hit at the test's `t` on the triangle with lane data
+    /// `p`: called once per query, by every core at the place it writes its record (and by
+    /// [`intersect`]), never inside the search, so that hit decisions and the `(t, id)`
+    /// order stay the test's own. `ray` is the ray as given (its `tmax`, not a running
+    /// best). The identity for Möller–Trumbore; for the watertight test, [`refined_t`].
+    /// u and v are the test's.
+    #[inline(always)]
+    fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
+        let _ = (ray, p);
+        t
+    }
+
     /// Scalar test on one triangle given as [`TriTest::lane_data`], interval
     /// `[ray.tmin, tmax]`.
     fn intersect_lane(ray: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit>;
@@ -338,9 +374,30 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     }
 }
 
-/// The scalar test of `precision` on one triangle (a convenience for callers that hold a
-/// [`Precision`] value rather than a test type).
+/// The hit of `ray` on one triangle as a core reports it: the scalar test of `precision`,
+/// then [`TriTest::finish_t`] (a convenience for callers that hold a [`Precision`] value
+/// rather than a test type).
 pub fn intersect(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
+    fn go<T: TriTest>(ray: &Ray, tri: &Triangle) -> Option<TriHit> {
+        let r = PreparedRay::new(ray);
+        if r.is_empty() {
+            return None;
+        }
+        let h = T::intersect_triangle(&r, tri)?;
+        Some(TriHit {
+            t: T::finish_t(ray, &T::lane_data(tri), h.t),
+            ..h
+        })
+    }
+    match precision {
+        Precision::Fast => go::<MollerTrumbore>(ray, tri),
+        Precision::Watertight => go::<Watertight>(ray, tri),
+    }
+}
+
+/// The test's own hit of `ray` on one triangle, before [`TriTest::finish_t`]: what the
+/// cores decide and order by (tests compare the `(t, id)` order with it).
+pub fn intersect_unrefined(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
     let r = PreparedRay::new(ray);
     if r.is_empty() {
         return None;

@@ -613,3 +613,109 @@ fn best_lane_orders_by_t_then_id() {
     assert_eq!(pack.best_lane(0b1111, &eq), Some(3));
     assert_eq!(pack.best_lane(0b0101, &eq), Some(2));
 }
+
+/// Every watertight hit over the random cases of `check_exact` (sizes 1e-4..1e3, up to
+/// 1e6 from the origin, aimed at vertices, edges and interiors) lies within the written
+/// bound of the exact t; so does every fast hit; and the t each test decides and orders
+/// by lies within its own written bound (`order_t_bound`).
+#[test]
+fn t_is_within_the_written_bound_on_random_cases() {
+    let mut rng = Rng(7);
+    let mut worst = [0.0f64; 2];
+    let mut worst_order = 0.0f64;
+    for round in 0..20_000 {
+        let reach = [1.0, 1e3, 1e6][round % 3];
+        let tri = random_triangle(&mut rng, reach);
+        if tri.is_degenerate() {
+            continue;
+        }
+        let r = ray_at(&mut rng, &tri, reach);
+        let Some(line) = oracle_line_f64(&r, &tri) else {
+            continue;
+        };
+        for (i, p) in [Precision::Fast, Precision::Watertight]
+            .into_iter()
+            .enumerate()
+        {
+            if let Some(h) = intersect_unrefined(p, &r, &tri) {
+                let err = (f64::from(h.t) - line.t).abs();
+                let tol =
+                    oracle::order_t_bound(p, &r, &tri, line.t) + oracle::oracle_t_error(&r, &tri);
+                assert!(
+                    err <= tol,
+                    "{p:?}: the test's t {} vs {} ({err:e} > {tol:e}): {r:?} {tri:?}",
+                    h.t,
+                    line.t
+                );
+                if p == Precision::Watertight {
+                    worst_order = worst_order.max(err / tol);
+                }
+            }
+            if let Some(h) = intersect(p, &r, &tri) {
+                let err = (f64::from(h.t) - line.t).abs();
+                let tol = oracle::t_bound(p, &r, &tri, line.t) + oracle::oracle_t_error(&r, &tri);
+                assert!(
+                    err <= tol,
+                    "{p:?}: t {} vs {} ({err:e} > {tol:e}): {r:?} {tri:?}",
+                    h.t,
+                    line.t
+                );
+                worst[i] = worst[i].max(err / tol);
+                let tol_uv = oracle::uv_bound(p, &r, &tri);
+                let du = (f64::from(h.u) - line.u)
+                    .abs()
+                    .max((f64::from(h.v) - line.v).abs());
+                assert!(
+                    du <= tol_uv,
+                    "{p:?}: u, v off by {du:e} > {tol_uv:e}: {r:?} {tri:?}"
+                );
+            }
+        }
+    }
+    eprintln!(
+        "worst error / bound: fast {:.3e}, watertight {:.3e}, watertight decision t {:.3e}",
+        worst[0], worst[1], worst_order
+    );
+}
+
+/// The reported watertight t is clamped into the ray's interval: the hit was decided on
+/// the test's t, which lies in `[tmin, tmax]`, and the refinement must not move it out.
+/// A 1000-unit triangle hit near the origin, where the test's and the refined t differ by
+/// many ulps, traced with the interval shrunk to the test's t on either side.
+#[test]
+fn refined_t_is_clamped_into_the_interval() {
+    let tri = tri([
+        [-500.0, -350.0, 150.0],
+        [550.0, -200.0, -400.0],
+        [-100.0, 500.0, 60.0],
+    ]);
+    let mut rng = Rng(9);
+    let (mut below, mut above) = (0, 0);
+    for _ in 0..2000 {
+        let r = ray(
+            scale(rng.vec(), 0.1),
+            [rng.sym() * 0.3, rng.sym() * 0.3, 1.0],
+            0.0,
+            f32::INFINITY,
+        );
+        let Some(raw) = intersect_unrefined(Precision::Watertight, &r, &tri) else {
+            continue;
+        };
+        let fine = intersect(Precision::Watertight, &r, &tri).expect("same decision");
+        assert_eq!((fine.u, fine.v), (raw.u, raw.v));
+        // [t0, t0], and [0, t0] or [t0, inf) on the side the refined t lies.
+        let t0 = raw.t;
+        let point = intersect(Precision::Watertight, &ray(r.org, r.dir, t0, t0), &tri);
+        assert_eq!(point.map(|h| h.t), Some(t0), "{r:?}");
+        let (lo, hi) = if fine.t > t0 {
+            above += 1;
+            (0.0, t0)
+        } else {
+            below += 1;
+            (t0, f32::INFINITY)
+        };
+        let h = intersect(Precision::Watertight, &ray(r.org, r.dir, lo, hi), &tri).unwrap();
+        assert_eq!(h.t, t0, "{r:?}");
+    }
+    assert!(below > 100 && above > 100, "{below} {above}");
+}
