@@ -110,7 +110,7 @@ def test_broadcast_origin_and_a_ray1_body_trace_alike(fox, fox_rays):
 def test_trace_async_gives_the_same_hits_as_a_synchronous_trace(fox, fox_rays):
     origins, directions = fox_rays
     job = fox.trace_async(origins, directions, hit="t_prim")
-    final = job.wait(progress=False, timeout=120)
+    final = job.wait(progress=False, timeout=120).info
     assert final["state"] == "succeeded" and final["kind"] == "trace"
     hits = job.result()
     assert hits.body == fox.trace(origins, directions, hit="t_prim").body
@@ -244,7 +244,7 @@ def test_spawned_rays_never_hit_their_own_triangle_and_naive_ones_do(fox, fox_ra
 def test_render_waits_with_a_progress_bar_and_decodes_the_png(fox, capsys):
     job = fox.render(width=64, height=48, spp=2, integrator="normals")
     assert job.state in ("queued", "running", "succeeded")
-    final = job.wait(progress=True, timeout=120)
+    final = job.wait(progress=True, timeout=120).info
     assert final["state"] == "succeeded" and final["progress"] == 1
     assert "100%" in capsys.readouterr().err, "tqdm drew the bar to the end"
     image = job.result()
@@ -266,7 +266,7 @@ def test_cancel_stops_a_running_render(client, fox):
     assert e.value.status == 409 and e.value.type == "/problems/conflict"
     record = job.cancel()
     assert record["state"] == "cancelled"
-    assert job.wait(progress=False, timeout=60, check=False)["state"] == "cancelled"
+    assert job.wait(progress=False, timeout=60, check=False).state == "cancelled"
     with pytest.raises(rayd.JobError, match="cancelled"):
         job.wait(progress=False)
     assert any(j.id == job.id for j in client.jobs())
@@ -335,3 +335,20 @@ def test_metrics_after_traffic_pass_promtool(client, fox, fox_rays):
     done = subprocess.run([promtool, "check", "metrics"], input=text, capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 0, f"promtool check metrics: {done.stdout}{done.stderr}\n{text}"
+
+
+# -- the README's example -----------------------------------------------------------------
+
+
+def test_the_readme_example_runs(server, monkeypatch, capsys):
+    from conftest import REPO
+
+    text = (REPO / "README.md").read_text().split("## Python", 1)[1]
+    code = text.split("```python\n", 1)[1].split("```", 1)[0]
+    assert len(code.strip().splitlines()) <= 12
+    monkeypatch.chdir(REPO)
+    env = {}
+    exec(compile(code.replace("http://127.0.0.1:8080", server.url), "README.md", "exec"), env)
+    assert env["image"].shape == (240, 320, 3)
+    assert set(env["hits"]) == {"t", "prim", "u", "v"} and "primitive_normals" in env["ans"]
+    assert env["bounce"].valid.any()

@@ -548,18 +548,19 @@ class Job:
         finally:
             resp.close()
 
-    def wait(self, progress: bool = True, timeout: float | None = None, check: bool = True) -> dict:
+    def wait(self, progress: bool = True, timeout: float | None = None, check: bool = True) -> Job:
         """Waits for the job to end, following its event stream; with ``progress`` a tqdm
-        bar shows its progress. Returns the final record; a job that failed or was
-        cancelled raises :class:`rayd.JobError` unless ``check`` is False. ``timeout``
-        (seconds) raises ``TimeoutError`` when the job has not ended by then."""
+        bar shows its progress. Returns the job itself (so ``job.wait().result()`` reads
+        well), its final record in :attr:`info`; a job that failed or was cancelled raises
+        :class:`rayd.JobError` unless ``check`` is False. ``timeout`` (seconds) raises
+        ``TimeoutError`` when the job has not ended by then."""
         deadline = None if timeout is None else _time.monotonic() + timeout
         bar = None
         if progress:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=100, desc=f"{self.info.get('kind', 'job')} {self.id[:8]}",
-                       unit="%", bar_format="{l_bar}{bar}| {n:.0f}% [{elapsed}<{remaining}]")
+                       unit="%", bar_format="{l_bar}{bar}| {n:.0f}% [{elapsed}<{remaining}{postfix}]")
 
         def show(info):
             self.info = info
@@ -595,7 +596,7 @@ class Job:
                 bar.close()
         if check and self.info["state"] != "succeeded":
             raise JobError(self.info)
-        return self.info
+        return self
 
     def result(self, *, raw: bool = False, frame: int | None = None):
         """The finished job's result (409 ``ProblemError`` while it runs).
