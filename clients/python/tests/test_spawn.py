@@ -69,3 +69,13 @@ def test_spawned_origins_lie_on_the_side_the_new_ray_leaves_by():
         rayd.spawn_rays(hits, dirs[:2], tri)
     with pytest.raises(ValueError, match="barycentrics"):
         rayd.spawn_rays({"prim": hits["prim"]}, dirs, tri)
+
+
+def test_triangle_normals_agree_with_face_normals_and_zero_degenerate_ones():
+    rng = np.random.default_rng(2)
+    tris = rng.uniform(-5, 5, size=(50, 3, 3)).astype(np.float32)
+    tris[7, 2] = tris[7, 0]  # coincident vertices: degenerate
+    table = rayd.triangle_normals(tris)
+    ids = np.arange(50, dtype=np.uint32)
+    assert np.array_equal(table[ids != 7], rayd.face_normals(tris, ids)[ids != 7])
+    assert (table[7] == 0).all()

@@ -14,7 +14,7 @@ the routes ``proto/openapi.yaml``.
 from .client import Client, Hits, Job, Scene
 from .errors import FormatError, JobError, ProblemError, RaydError
 from .formats import MISS_PRIM
-from .spawn import Rays, face_normals, hit_points, offset_ray, spawn_rays
+from .spawn import Rays, face_normals, hit_points, offset_ray, spawn_rays, triangle_normals
 
 INVALID_ID = MISS_PRIM
 """Open3D's ``RaycastingScene.INVALID_ID``: the id of a miss (0xFFFFFFFF)."""
@@ -37,4 +37,5 @@ __all__ = [
     "hit_points",
     "offset_ray",
     "spawn_rays",
+    "triangle_normals",
 ]

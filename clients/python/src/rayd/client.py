@@ -27,7 +27,7 @@ import requests
 from . import formats
 from .errors import FormatError, JobError, ProblemError
 from .formats import HIT_FORMATS, MISS_PRIM
-from .spawn import face_normals
+from .spawn import triangle_normals
 
 _FINAL = ("succeeded", "failed", "cancelled")
 _MEDIA = {
@@ -317,6 +317,14 @@ class Scene:
             self._known[key] = tris
         return self._known[key]
 
+    def _normals(self, version, time) -> np.ndarray:
+        """Unit face normals of every triangle at ``version``/``time``, plus a zero row."""
+        key = ("normals", version, None if time is None else float(time))
+        if key not in self._known:
+            n = triangle_normals(self.triangles(version, time))
+            self._known[key] = np.concatenate([n, np.zeros((1, 3), np.float32)])
+        return self._known[key]
+
     def update_geometry(self, triangles) -> int:
         """New positions for every triangle (``(T, 3, 3)`` or ``(T, 9)``, same ids): a new
         version, returned. Traces default to the latest version from then on."""
@@ -449,8 +457,10 @@ class Scene:
                           version=version, time=time)
         prim = hits["prim"]
         hit = prim != MISS_PRIM
-        normals = face_normals(self.triangles(version, time), prim) if hit.any() else \
-            np.zeros((prim.size, 3), np.float32)
+        # One normal per triangle and version, then a gather per ray; misses index the
+        # extra zero row at the end.
+        table = self._normals(version, time)
+        normals = table[np.where(hit, prim, table.shape[0] - 1)]
         return {
             "t_hit": np.array(hits["t"]).reshape(lead),
             "geometry_ids": np.where(hit, np.uint32(0), np.uint32(MISS_PRIM)).reshape(lead),
