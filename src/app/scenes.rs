@@ -443,6 +443,18 @@ impl App {
         ))
     }
 
+    /// The world-space triangles of scene `id` at `version` (default: the latest) and `time`
+    /// (version 1 only), in id order: what `GET /v1/scenes/{id}/geometry` answers, so that a
+    /// client can shade its own hits (normals, hit points) with the positions that were traced.
+    pub async fn triangles(
+        &self,
+        id: &str,
+        version: Option<u32>,
+        time: Option<f64>,
+    ) -> Result<Arc<Vec<Triangle>>, AppError> {
+        Ok(self.geometry(id, version, time).await?.0.triangles)
+    }
+
     /// Admits a synchronous trace to the queue (before its body is read, so that a full
     /// queue answers at once).
     pub fn admit_trace(&self) -> Result<sched::Ticket, AppError> {

@@ -19,7 +19,7 @@ use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
 use crate::app::{App, AppError, JobEvents, RenderSpec, TraceParams, UploadKind};
-use crate::formats::binary::{BinaryError, Ray1Sink};
+use crate::formats::binary::{write_tri, BinaryError, Ray1Sink};
 use crate::jobs::JobError;
 use crate::store::StoreError;
 
@@ -45,6 +45,7 @@ pub fn routes() -> Routes {
             "/v1/scenes/{id}/geometry",
             unlimited(axum::routing::put(update_geometry)),
         )
+        .get("/v1/scenes/{id}/geometry", get_geometry)
         .method_router(
             Method::POST,
             "/v1/scenes/{id}/trace",
@@ -257,6 +258,28 @@ async fn update_geometry(
     let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
     let version = app.update_geometry(&id, body.bytes().clone()).await?;
     Ok(Json(json!({"id": id, "version": version})).into_response())
+}
+
+/// The query of `GET /v1/scenes/{id}/geometry`: which positions.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct GeometryQuery {
+    version: Option<u32>,
+    time: Option<f64>,
+}
+
+/// `GET /v1/scenes/{id}/geometry`: the triangles a trace of the same `version` and `time`
+/// traces, as TRI1, so that clients can compute normals and hit points of their own hits.
+async fn get_geometry(
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(q): ApiQuery<GeometryQuery>,
+) -> Result<Response, ApiError> {
+    let tris = app.triangles(&id, q.version, q.time).await?;
+    let mut resp = Response::new(Body::from(write_tri(&tris)));
+    resp.headers_mut()
+        .insert(header::CONTENT_TYPE, HeaderValue::from_static(TRI));
+    Ok(resp)
 }
 
 /// Whether the client asked for an asynchronous answer (RFC 7240 `Prefer: respond-async`).

@@ -1,0 +1,641 @@
+"""The HTTP client: scenes, ray batches, geometry versions, render jobs.
+
+Every route is the server's ``proto/openapi.yaml``; this module only turns numpy arrays
+into request bodies and answers back into numpy arrays. Binary bodies go out as one
+``bytearray`` (filled through a structured view, see :mod:`rayd.formats`) that the HTTP
+library hands to the socket as it is, and come back as the one ``bytes`` object the socket
+was read into, which the result arrays view. No per-ray Python code runs either way.
+
+``requests`` is the HTTP library: the service is request/response plus one event stream,
+which a synchronous, connection-pooling client covers; ``requests`` is the most widely
+deployed and kept Python HTTP client, packaged everywhere, and through urllib3 it sends any
+buffer-protocol body without copying it. (``httpx`` would add HTTP/2 and asyncio, which a
+batch tracing client does not need.)
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time as _time
+from urllib.parse import quote
+
+import numpy as np
+import requests
+
+from . import formats
+from .errors import FormatError, JobError, ProblemError
+from .formats import HIT_FORMATS, MISS_PRIM
+from .spawn import triangle_normals
+
+_FINAL = ("succeeded", "failed", "cancelled")
+_MEDIA = {
+    ".glb": "model/gltf-binary",
+    ".gltf": "model/gltf+json",
+    ".tri": "application/x-rayd-tri",
+}
+TRI_MEDIA = "application/x-rayd-tri"
+OCTET = "application/octet-stream"
+
+
+class Hits(dict):
+    """A trace's answer: the HIT1 fields as numpy arrays, keyed by name.
+
+    ``t`` (float32, ``inf`` for a miss), ``prim`` (uint32, 0xFFFFFFFF for a miss), ``u`` and
+    ``v`` (float32, 0 for a miss) for ``hit='t_prim_uv'``; ``t`` and ``prim`` for
+    ``t_prim``; ``t`` for ``t``; ``occluded`` (bool) for ``occluded``. The arrays are
+    read-only views of :attr:`body`, the HIT1 bytes exactly as the server sent them; copy
+    one (``np.array(hits["t"])``) to write to it.
+
+    ``accel`` is the accelerator that traced (what ``auto`` chose) and ``server_timing``
+    the server's ``build`` and ``trace`` milliseconds, when the answer carried them.
+    """
+
+    def __init__(self, body, records, accel=None, server_timing=None):
+        super().__init__(formats.hit_arrays(records))
+        self.body = body
+        self.records = records
+        self.accel = accel
+        self.server_timing = server_timing or {}
+
+
+def _server_timing(value: str | None) -> dict:
+    """``build;dur=1.5, trace;dur=2.0`` as ``{"build": 1.5, "trace": 2.0}``."""
+    out = {}
+    for part in (value or "").split(","):
+        name, _, rest = part.strip().partition(";")
+        for p in rest.split(";"):
+            k, _, v = p.strip().partition("=")
+            if k == "dur" and name:
+                try:
+                    out[name] = float(v)
+                except ValueError:
+                    pass
+    return out
+
+
+def _media_type_of(data: bytes) -> str | None:
+    """The upload media type a body's first bytes show, if they show one."""
+    head = bytes(data[:16])
+    if head[:4] == b"glTF":
+        return "model/gltf-binary"
+    if len(head) >= 4 and int.from_bytes(head[:4], "little") == formats.TRI1_MAGIC:
+        return TRI_MEDIA
+    if head.lstrip(b"\xef\xbb\xbf \t\r\n")[:1] == b"{":
+        return "model/gltf+json"
+    return None
+
+
+class Client:
+    """A connection to one ``rayd serve``.
+
+    ``url`` is the server's base URL; ``token`` a bearer token for servers started with
+    ``--token-file``. ``timeout`` (seconds) bounds connecting and each wait for bytes.
+    A 503 (queue full, body budget or per-client bound reached; always with
+    ``Retry-After``) is retried up to ``retries`` times after the delay the server asks for;
+    every other error status raises :class:`rayd.ProblemError`.
+    """
+
+    def __init__(
+        self,
+        url: str = "http://127.0.0.1:8080",
+        token: str | None = None,
+        *,
+        timeout: float = 300.0,
+        retries: int = 3,
+        session: requests.Session | None = None,
+    ):
+        self.url = url.rstrip("/")
+        self.timeout = timeout
+        self.retries = retries
+        self._http = session or requests.Session()
+        if token is not None:
+            self._http.headers["Authorization"] = f"Bearer {token}"
+
+    def __repr__(self):
+        return f"rayd.Client({self.url!r})"
+
+    # -- plumbing -------------------------------------------------------------------------
+
+    def _request(
+        self,
+        method: str,
+        path: str,
+        *,
+        params=None,
+        json_body=None,
+        data=None,
+        headers=None,
+        stream=False,
+        timeout=None,
+    ) -> requests.Response:
+        params = {k: v for k, v in (params or {}).items() if v is not None}
+        for attempt in range(self.retries + 1):
+            resp = self._http.request(
+                method,
+                self.url + path,
+                params=params,
+                json=json_body,
+                data=data,
+                headers=headers,
+                stream=stream,
+                timeout=self.timeout if timeout is None else timeout,
+            )
+            if resp.status_code < 400:
+                return resp
+            err = ProblemError.from_response(resp)
+            resp.close()
+            if resp.status_code == 503 and err.retry_after is not None and attempt < self.retries:
+                _time.sleep(min(max(err.retry_after, 0.05), 30.0))
+                continue
+            raise err
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def _json(self, method, path, **kw):
+        resp = self._request(method, path, **kw)
+        return resp.json() if resp.content else None
+
+    def _binary(self, method, path, **kw):
+        """A response and its whole body as one ``bytes``, read straight from the socket."""
+        headers = {"Accept-Encoding": "identity", **(kw.pop("headers", None) or {})}
+        resp = self._request(method, path, headers=headers, stream=True, **kw)
+        try:
+            body = resp.raw.read(decode_content=True)
+        finally:
+            resp.raw.release_conn()
+        return resp, body
+
+    # -- the service ----------------------------------------------------------------------
+
+    def wait_ready(self, timeout: float = 30.0) -> None:
+        """Waits until ``/readyz`` answers 200 (the store is loaded and work is accepted)."""
+        deadline = _time.monotonic() + timeout
+        last = None
+        while True:
+            try:
+                resp = self._http.get(self.url + "/readyz", timeout=2.0)
+                if resp.status_code == 200:
+                    return
+                last = f"/readyz answered {resp.status_code}"
+            except requests.ConnectionError as e:
+                last = str(e)
+            if _time.monotonic() > deadline:
+                raise TimeoutError(f"{self.url} was not ready within {timeout} s: {last}")
+            _time.sleep(0.05)
+
+    def metrics(self) -> str:
+        """The Prometheus text of ``/metrics``."""
+        return self._request("GET", "/metrics").text
+
+    # -- scenes ---------------------------------------------------------------------------
+
+    def upload(self, path_or_bytes, *, content_type: str | None = None) -> Scene:
+        """Uploads a scene: a path to a ``.glb``, ``.gltf`` (buffers embedded) or ``.tri``
+        file, or the file's bytes. The media type comes from the extension or the bytes
+        unless given. Uploading the same bytes twice gives the same scene."""
+        if isinstance(path_or_bytes, (str, os.PathLike)):
+            path = os.fspath(path_or_bytes)
+            with open(path, "rb") as f:
+                data = f.read()
+            content_type = content_type or _MEDIA.get(os.path.splitext(path)[1].lower())
+            where = path
+        else:
+            data = path_or_bytes
+            where = "the bytes given"
+        content_type = content_type or _media_type_of(data)
+        if content_type is None:
+            raise ValueError(
+                f"cannot tell the scene format of {where}: pass content_type= "
+                f"({', '.join(sorted(set(_MEDIA.values())))})"
+            )
+        info = self._json("POST", "/v1/scenes", data=data, headers={"Content-Type": content_type})
+        scene = Scene(self, info)
+        if content_type == TRI_MEDIA:
+            # The positions of version 1 are the uploaded records themselves.
+            scene._known[(1, None)] = formats.decode_triangles(bytes(data))
+        return scene
+
+    def scene(self, scene_id: str) -> Scene:
+        """The scene with this id."""
+        return Scene(self, self._json("GET", f"/v1/scenes/{quote(scene_id, safe='')}"))
+
+    def scenes(self) -> list[Scene]:
+        """Every scene on the server (all pages)."""
+        out, token = [], None
+        while True:
+            page = self._json("GET", "/v1/scenes", params={"limit": 1000, "page_token": token})
+            out.extend(Scene(self, s) for s in page["scenes"])
+            token = page.get("next_page_token")
+            if not token:
+                return out
+
+    def delete(self, scene) -> None:
+        """Deletes a scene (a :class:`Scene` or an id) and every version of it."""
+        scene_id = scene.id if isinstance(scene, Scene) else scene
+        self._request("DELETE", f"/v1/scenes/{quote(scene_id, safe='')}")
+
+    # -- jobs -----------------------------------------------------------------------------
+
+    def job(self, job_id: str) -> Job:
+        """The job with this id."""
+        return Job(self, self._json("GET", f"/v1/jobs/{quote(job_id, safe='')}"))
+
+    def jobs(self) -> list[Job]:
+        """Every job the server keeps, newest first (all pages)."""
+        out, token = [], None
+        while True:
+            page = self._json("GET", "/v1/jobs", params={"limit": 1000, "page_token": token})
+            out.extend(Job(self, j) for j in page["jobs"])
+            token = page.get("next_page_token")
+            if not token:
+                return out
+
+
+class Scene:
+    """A scene on the server. ``info`` is its summary (``rayd info``'s fields, plus ``id``,
+    ``version``, ``content_type``, ``created_at``) as last fetched."""
+
+    def __init__(self, client: Client, info: dict):
+        self.client = client
+        self.info = info
+        self.id = info["id"]
+        # Positions known without asking: (version, time) -> (T, 3, 3) float32.
+        self._known: dict = {}
+
+    def __repr__(self):
+        return (
+            f"rayd.Scene({self.id[:12]}…, {self.info.get('triangles')} triangles, "
+            f"version {self.info.get('version')})"
+        )
+
+    def __eq__(self, other):
+        return isinstance(other, Scene) and other.id == self.id and other.client is self.client
+
+    def __hash__(self):
+        return hash(self.id)
+
+    @property
+    def _path(self):
+        return f"/v1/scenes/{self.id}"
+
+    def refresh(self) -> dict:
+        """Fetches the summary again (``version`` moves with geometry updates)."""
+        self.info = self.client._json("GET", self._path)
+        return self.info
+
+    @property
+    def version(self) -> int:
+        """The latest geometry version, as the server says now."""
+        return self.refresh()["version"]
+
+    def delete(self) -> None:
+        """Deletes the scene and every version of it."""
+        self.client.delete(self)
+
+    # -- geometry -------------------------------------------------------------------------
+
+    def triangles(self, version: int | None = None, time: float | None = None) -> np.ndarray:
+        """The world-space triangles traced at ``version`` (default: the latest) and
+        ``time`` (version 1 only): ``(T, 3, 3)`` float32, rows ``v0, v1, v2``, in id order.
+
+        Fetched from ``GET /v1/scenes/{id}/geometry`` (TRI1) once per version and time;
+        positions this object uploaded are known without asking."""
+        if version is None:
+            version = self.version
+        key = (version, None if time is None else float(time))
+        if key not in self._known:
+            _, body = self.client._binary(
+                "GET", f"{self._path}/geometry", params={"version": version, "time": time}
+            )
+            tris = formats.decode_triangles(body)
+            if tris.shape[0] != self.info.get("triangles", tris.shape[0]):
+                raise FormatError(
+                    f"TRI1: {tris.shape[0]} triangles answered for a scene of "
+                    f"{self.info['triangles']}"
+                )
+            self._known[key] = tris
+        return self._known[key]
+
+    def _normals(self, version, time) -> np.ndarray:
+        """Unit face normals of every triangle at ``version``/``time``, plus a zero row."""
+        key = ("normals", version, None if time is None else float(time))
+        if key not in self._known:
+            n = triangle_normals(self.triangles(version, time))
+            self._known[key] = np.concatenate([n, np.zeros((1, 3), np.float32)])
+        return self._known[key]
+
+    def update_geometry(self, triangles) -> int:
+        """New positions for every triangle (``(T, 3, 3)`` or ``(T, 9)``, same ids): a new
+        version, returned. Traces default to the latest version from then on."""
+        body = formats.encode_triangles(triangles)
+        answer = self.client._json(
+            "PUT", f"{self._path}/geometry", data=body, headers={"Content-Type": TRI_MEDIA}
+        )
+        version = int(answer["version"])
+        self.info["version"] = version
+        known = formats.decode_triangles(body)
+        known.flags.writeable = False
+        self._known[(version, None)] = known
+        return version
+
+    # -- tracing --------------------------------------------------------------------------
+
+    @staticmethod
+    def _trace_params(query, hit, accel, version, time, build, precision, invalid):
+        if hit not in HIT_FORMATS:
+            raise ValueError(f"hit must be one of {', '.join(HIT_FORMATS)}, not {hit!r}")
+        return {
+            "query": query,
+            "hit": hit,
+            "accel": accel,
+            "version": version,
+            "time": None if time is None else repr(float(time)),
+            "build": build,
+            "precision": precision,
+            "invalid": invalid,
+        }
+
+    def trace(
+        self,
+        origins,
+        directions,
+        tmin=0.0,
+        tmax=np.inf,
+        query: str = "closest",
+        hit: str = "t_prim_uv",
+        accel: str | None = None,
+        version: int | None = None,
+        time: float | None = None,
+        *,
+        build: str | None = None,
+        precision: str | None = None,
+        invalid: str | None = None,
+    ) -> Hits:
+        """Traces rays ``origins + t·directions`` for ``tmin <= t <= tmax``.
+
+        ``origins``/``directions`` are ``(N, 3)`` (or one ``(3,)`` for all); ``tmin``/``tmax``
+        scalars or ``(N,)``. ``query`` is ``closest`` or ``any``; ``hit`` chooses the fields
+        (``t_prim_uv``, ``t_prim``, ``t``, ``occluded``); ``accel``, ``build``,
+        ``precision``, ``version``, ``time`` and ``invalid`` (``error`` or ``miss``) are the
+        trace route's parameters, the server's defaults when None. Returns :class:`Hits`.
+        """
+        params = self._trace_params(query, hit, accel, version, time, build, precision, invalid)
+        body = formats.encode_rays(origins, directions, tmin, tmax)
+        n = (len(body) - formats.HEADER_BYTES) // formats.RAY_DTYPE.itemsize
+        return self._trace_body(body, n, params)
+
+    def trace_ray1(self, body, *, hit: str = "t_prim_uv", **params) -> Hits:
+        """Traces a ready RAY1 body (bytes of a ``.ray`` file) as it is; ``params`` as
+        :meth:`trace`'s keywords."""
+        n = formats.decode_rays(body).shape[0]
+        full = self._trace_params(
+            params.pop("query", "closest"),
+            hit,
+            *(params.pop(k, None) for k in
+              ("accel", "version", "time", "build", "precision", "invalid")),
+        )
+        if params:
+            raise TypeError(f"unknown trace parameters: {', '.join(params)}")
+        return self._trace_body(body, n, full)
+
+    def _trace_body(self, body, n, params) -> Hits:
+        resp, answer = self.client._binary(
+            "POST", f"{self._path}/trace", params=params, data=body,
+            headers={"Content-Type": OCTET},
+        )
+        records = formats.decode_hits(answer, HIT_FORMATS[params["hit"]], n)
+        return Hits(
+            answer,
+            records,
+            accel=resp.headers.get("X-Rayd-Accel"),
+            server_timing=_server_timing(resp.headers.get("Server-Timing")),
+        )
+
+    def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, **kw) -> Job:
+        """:meth:`trace` as a job (``Prefer: respond-async``); ``Job.result()`` gives the
+        :class:`Hits`."""
+        params = self._trace_params(
+            kw.pop("query", "closest"),
+            kw.pop("hit", "t_prim_uv"),
+            *(kw.pop(k, None) for k in
+              ("accel", "version", "time", "build", "precision", "invalid")),
+        )
+        if kw:
+            raise TypeError(f"unknown trace parameters: {', '.join(kw)}")
+        body = formats.encode_rays(origins, directions, tmin, tmax)
+        info = self.client._json(
+            "POST", f"{self._path}/trace", params=params, data=body,
+            headers={"Content-Type": OCTET, "Prefer": "respond-async"},
+        )
+        return Job(self.client, info, expect=(HIT_FORMATS[params["hit"]],
+                                              (len(body) - 16) // 32))
+
+    def cast_rays(self, rays, *, accel=None, version=None, time=None) -> dict:
+        """Open3D's ``RaycastingScene.cast_rays`` against this scene.
+
+        ``rays`` is ``(..., 6)``: origin and direction (any leading shape, float32 or
+        convertible; an Open3D tensor works too). Every ray spans ``0 <= t < inf`` in units
+        of its direction's length. Returns Open3D's keys, dtypes and miss values, shaped
+        like ``rays[..., 0]``: ``t_hit`` (float32, inf), ``geometry_ids`` (uint32, 0 for
+        this scene's one geometry, 4294967295 = INVALID_ID), ``primitive_ids`` (uint32,
+        INVALID_ID), ``primitive_uvs`` (float32 ``(..., 2)``, 0) and
+        ``primitive_normals`` (float32 ``(..., 3)``, unit geometric normals
+        ``(v1-v0) × (v2-v0)`` as Embree reports them, not turned to the ray; 0).
+        Normals are computed here from the triangles of the version traced
+        (:meth:`triangles`)."""
+        if hasattr(rays, "numpy") and not isinstance(rays, np.ndarray):
+            rays = rays.numpy()
+        r = np.asarray(rays, dtype=np.float32)
+        if r.ndim < 1 or r.shape[-1] != 6:
+            raise ValueError(f"rays must have shape (..., 6), not {r.shape}")
+        lead = r.shape[:-1]
+        flat = r.reshape(-1, 6)
+        if version is None:
+            version = self.version  # pinned, so the normals are those of the version traced
+        hits = self.trace(flat[:, :3], flat[:, 3:], 0.0, np.inf, accel=accel,
+                          version=version, time=time)
+        prim = hits["prim"]
+        hit = prim != MISS_PRIM
+        # One normal per triangle and version, then a gather per ray; misses index the
+        # extra zero row at the end.
+        table = self._normals(version, time)
+        normals = table[np.where(hit, prim, table.shape[0] - 1)]
+        return {
+            "t_hit": np.array(hits["t"]).reshape(lead),
+            "geometry_ids": np.where(hit, np.uint32(0), np.uint32(MISS_PRIM)).reshape(lead),
+            "primitive_ids": np.array(prim).reshape(lead),
+            "primitive_uvs": np.stack([hits["u"], hits["v"]], axis=-1).reshape(lead + (2,)),
+            "primitive_normals": normals.reshape(lead + (3,)),
+        }
+
+    # -- rendering ------------------------------------------------------------------------
+
+    def render(self, *, idempotency_key: str | None = None, **options) -> Job:
+        """Starts a render job with the options of ``rayd render`` (``width``, ``height``,
+        ``spp``, ``integrator``, ``bounces``, ``camera`` or ``eye``/``target``/``up``,
+        ``fov``, ``format``, ``accel``, ``time``, ``version``, ``seed``, ``frames``,
+        ``priority``, ...; ``proto/openapi.yaml``, ``RenderRequest``). Options left None
+        take the server's defaults. Returns the :class:`Job`."""
+        body = {k: _plain(v) for k, v in options.items() if v is not None}
+        headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
+        info = self.client._json("POST", f"{self._path}/render", json_body=body, headers=headers)
+        return Job(self.client, info)
+
+
+def _plain(v):
+    """numpy values as JSON ones."""
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    return v
+
+
+class Job:
+    """A render or asynchronous trace on the server; ``info`` is its record as last seen
+    (``state``, ``progress``, ``stats``, ``error``, ``results``, ...)."""
+
+    def __init__(self, client: Client, info: dict, *, expect=None):
+        self.client = client
+        self.info = info
+        self.id = info["id"]
+        self._expect = expect
+
+    def __repr__(self):
+        return f"rayd.Job({self.id}, {self.info.get('kind')}, {self.info.get('state')})"
+
+    @property
+    def _path(self):
+        return f"/v1/jobs/{self.id}"
+
+    @property
+    def state(self) -> str:
+        """The state as last seen (``refresh()`` asks again)."""
+        return self.info["state"]
+
+    def refresh(self) -> dict:
+        """Fetches the job's record."""
+        self.info = self.client._json("GET", self._path)
+        return self.info
+
+    def _events(self, deadline):
+        """Job records from the SSE stream, each as it arrives, until the stream ends."""
+        read_timeout = None if deadline is None else max(deadline - _time.monotonic(), 0.1)
+        resp = self.client._request(
+            "GET", f"{self._path}/events", stream=True,
+            headers={"Accept": "text/event-stream"},
+            timeout=(self.client.timeout, read_timeout),
+        )
+        try:
+            buf = b""
+            data = []
+            event = "message"
+            for chunk in resp.iter_content(chunk_size=None):
+                buf += chunk
+                *lines, buf = buf.split(b"\n")
+                for raw in lines:
+                    line = raw.rstrip(b"\r").decode("utf-8")
+                    if not line:  # An empty line ends one event.
+                        if data and event == "job":
+                            yield json.loads("\n".join(data))
+                        data, event = [], "message"
+                        continue
+                    if line.startswith(":"):
+                        continue  # A comment: the server's keep-alive.
+                    field, _, value = line.partition(":")
+                    value = value[1:] if value.startswith(" ") else value
+                    if field == "data":
+                        data.append(value)
+                    elif field == "event":
+                        event = value
+                if deadline is not None and _time.monotonic() > deadline:
+                    return
+        finally:
+            resp.close()
+
+    def wait(self, progress: bool = True, timeout: float | None = None, check: bool = True) -> Job:
+        """Waits for the job to end, following its event stream; with ``progress`` a tqdm
+        bar shows its progress. Returns the job itself (so ``job.wait().result()`` reads
+        well), its final record in :attr:`info`; a job that failed or was cancelled raises
+        :class:`rayd.JobError` unless ``check`` is False. ``timeout`` (seconds) raises
+        ``TimeoutError`` when the job has not ended by then."""
+        deadline = None if timeout is None else _time.monotonic() + timeout
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=100, desc=f"{self.info.get('kind', 'job')} {self.id[:8]}",
+                       unit="%", bar_format="{l_bar}{bar}| {n:.0f}% [{elapsed}<{remaining}{postfix}]")
+
+        def show(info):
+            self.info = info
+            if bar is not None:
+                bar.n = round(100 * float(info.get("progress") or 0))
+                bar.set_postfix_str(info.get("state", ""), refresh=False)
+                bar.refresh()
+
+        try:
+            if self.info.get("state") not in _FINAL:
+                for info in self._events(deadline):
+                    show(info)
+                    if info.get("state") in _FINAL:
+                        break
+            # A stream that closed early (the server shutting down, a proxy's timeout):
+            # poll until the end or the deadline.
+            pause = 0.05
+            while self.info.get("state") not in _FINAL:
+                if deadline is not None and _time.monotonic() > deadline:
+                    raise TimeoutError(
+                        f"job {self.id} is still {self.info.get('state')} after {timeout} s"
+                    )
+                _time.sleep(pause)
+                pause = min(pause * 2, 1.0)
+                show(self.client._json("GET", self._path))
+            show(self.info)
+        except requests.exceptions.ReadTimeout:
+            raise TimeoutError(
+                f"job {self.id} is still {self.info.get('state')} after {timeout} s"
+            ) from None
+        finally:
+            if bar is not None:
+                bar.close()
+        if check and self.info["state"] != "succeeded":
+            raise JobError(self.info)
+        return self
+
+    def result(self, *, raw: bool = False, frame: int | None = None):
+        """The finished job's result (409 ``ProblemError`` while it runs).
+
+        A render's PNG comes back as an ``(H, W, C)`` uint8 array when Pillow is installed,
+        else as the PNG's bytes; an EXR always as bytes; an asynchronous trace's HIT1 as
+        :class:`Hits`. ``raw=True`` gives the bytes in every case. ``frame`` picks one frame
+        of a multi-frame render."""
+        resp, body = self.client._binary("GET", f"{self._path}/result", params={"frame": frame})
+        if raw:
+            return body
+        ctype = resp.headers.get("Content-Type", "").split(";")[0].strip()
+        if ctype == OCTET:
+            fmt, count = self._expect if self._expect else (None, None)
+            return Hits(body, formats.decode_hits(body, fmt, count))
+        if ctype == "image/png":
+            try:
+                from PIL import Image
+            except ImportError:
+                return body
+            with Image.open(io.BytesIO(body)) as img:
+                return np.asarray(img)
+        return body
+
+    def cancel(self) -> dict | None:
+        """Cancels a queued or running job (its record, now ``cancelled``, is returned), or
+        deletes an ended one with its result (None)."""
+        resp = self.client._request("DELETE", self._path)
+        if resp.status_code == 204:
+            return None
+        self.info = resp.json()
+        return self.info

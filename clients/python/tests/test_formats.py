@@ -1,0 +1,94 @@
+"""RAY1/HIT1/TRI1 as the repository's ``proto/binary-formats.md`` lays them out, without a server."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from rayd import FormatError, formats
+
+
+def test_ray1_records_are_origin_tmin_direction_tmax():
+    o = np.array([[1, 2, 3], [4, 5, 6]], np.float64)
+    d = np.array([[0, 0, 1], [0, 1, 0]], np.float32)
+    body = formats.encode_rays(o, d, tmin=[0.5, 0.25], tmax=9.0)
+    assert isinstance(body, bytearray) and len(body) == 16 + 2 * 32
+    assert struct.unpack_from("<IHHQ", body) == (0x31594152, 1, 0, 2)
+    assert body[:4] == b"RAY1"
+    assert struct.unpack_from("<8f", body, 16) == (1, 2, 3, 0.5, 0, 0, 1, 9)
+    assert struct.unpack_from("<8f", body, 48) == (4, 5, 6, 0.25, 0, 1, 0, 9)
+    back = formats.decode_rays(bytes(body))
+    assert np.array_equal(back["origin"], o) and np.array_equal(back["direction"], d)
+
+
+def test_one_origin_is_broadcast_to_every_direction():
+    body = formats.encode_rays([1, 1, 1], np.eye(3))
+    recs = formats.decode_rays(body)
+    assert recs.shape == (3,) and (recs["origin"] == 1).all()
+    assert np.isinf(recs["tmax"]).all() and (recs["tmin"] == 0).all()
+
+
+@pytest.mark.parametrize(
+    "origins,directions,match",
+    [
+        (np.zeros((4, 2)), np.zeros((4, 3)), "origins must have shape"),
+        (np.zeros((4, 3)), np.zeros((5, 3)), "ray counts disagree"),
+    ],
+)
+def test_bad_ray_shapes_are_refused(origins, directions, match):
+    with pytest.raises(ValueError, match=match):
+        formats.encode_rays(origins, directions)
+
+
+def _hit1(fmt, records: bytes, count):
+    return struct.pack("<IHHQ", 0x31544948, 1, fmt, count) + records
+
+
+def test_hit1_formats_decode_to_their_fields():
+    rec = struct.pack("<fIff", 2.5, 7, 0.25, 0.5) + struct.pack("<fIff", np.inf, 0xFFFFFFFF, 0, 0)
+    hits = formats.hit_arrays(formats.decode_hits(_hit1(0, rec, 2), 0, 2))
+    assert hits["t"].tolist() == [2.5, np.inf] and hits["prim"].tolist() == [7, 0xFFFFFFFF]
+    assert hits["u"].tolist() == [0.25, 0] and hits["v"].tolist() == [0.5, 0]
+    occ = formats.hit_arrays(formats.decode_hits(_hit1(3, b"\x01\x00\x01", 3)))
+    assert occ["occluded"].dtype == np.bool_ and occ["occluded"].tolist() == [True, False, True]
+    assert formats.decode_hits(_hit1(1, struct.pack("<fI", 1, 2), 1)).dtype.names == ("t", "prim")
+    assert formats.decode_hits(_hit1(2, struct.pack("<f", 1), 1)).dtype.names == ("t",)
+
+
+@pytest.mark.parametrize(
+    "body,match",
+    [
+        (b"HIT1", "shorter than the 16-byte header"),
+        (struct.pack("<IHHQ", 0x31594152, 1, 0, 0), "magic at byte 0 is RAY1, not HIT1"),
+        (struct.pack("<IHHQ", 0x31544948, 2, 0, 0), "version at byte 4 is 2"),
+        (struct.pack("<IHHQ", 0x31544948, 1, 4, 0), "format at byte 6 is 4"),
+        (_hit1(2, b"\0" * 7, 2), "is 23 bytes but its header's count 2 needs 24"),
+        (_hit1(2, b"\0" * 4, 2**64 - 1), "needs"),
+    ],
+)
+def test_hit1_readers_check_in_the_order_of_the_format(body, match):
+    with pytest.raises(FormatError, match=match):
+        formats.decode_hits(body)
+
+
+def test_an_answer_of_another_format_or_count_is_refused():
+    body = _hit1(2, struct.pack("<f", 1), 1)
+    with pytest.raises(FormatError, match="format 2 answered where 0 was asked for"):
+        formats.decode_hits(body, 0, 1)
+    with pytest.raises(FormatError, match="1 records answered for 2 rays"):
+        formats.decode_hits(body, 2, 2)
+
+
+def test_tri1_round_trips_and_refuses_non_finite_coordinates():
+    tris = np.arange(18, dtype=np.float32).reshape(2, 3, 3)
+    body = formats.encode_triangles(tris.reshape(2, 9))
+    assert struct.unpack_from("<IHHQ", body) == (0x31495254, 1, 0, 2)
+    assert struct.unpack_from("<9f", body, 16 + 36) == tuple(range(9, 18))
+    assert np.array_equal(formats.decode_triangles(body), tris)
+    tris[1, 2, 0] = np.inf
+    with pytest.raises(ValueError, match="triangle 1 has a NaN or infinite"):
+        formats.encode_triangles(tris)
+    with pytest.raises(FormatError, match="TRI1: magic at byte 0 is HIT1"):
+        formats.decode_triangles(_hit1(0, b"", 0))
