@@ -78,7 +78,10 @@ fn asset(content_type: &'static str, body: &'static str) -> Response {
         header::X_CONTENT_TYPE_OPTIONS,
         HeaderValue::from_static("nosniff"),
     );
-    h.insert(header::REFERRER_POLICY, HeaderValue::from_static("no-referrer"));
+    h.insert(
+        header::REFERRER_POLICY,
+        HeaderValue::from_static("no-referrer"),
+    );
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
     h.insert(
         HeaderName::from_static("cross-origin-opener-policy"),
@@ -133,8 +136,7 @@ mod tests {
 
     #[test]
     fn browsers_get_html_and_clients_json() {
-        let chromium =
-            "text/html,application/xhtml+xml,application/xml;q=0.9,image/avif,*/*;q=0.8";
+        let chromium = "text/html,application/xhtml+xml,application/xml;q=0.9,image/avif,*/*;q=0.8";
         assert!(wants_html(&accept(chromium)));
         assert!(!wants_html(&HeaderMap::new()));
         assert!(!wants_html(&accept("*/*")));
