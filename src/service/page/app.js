@@ -2,7 +2,7 @@
 // renders, all through the /v1 API (proto/openapi.yaml).
 //
 // Rules this file keeps: every piece of data goes into the DOM through textContent or a
-// property (never innerHTML), so a scene named like markup shows as text; the bearer token
+// property (never parsed as markup), so a scene named like markup shows as text; the bearer token
 // lives in sessionStorage and travels only in the Authorization header (never in a URL),
 // which is why job events are read with fetch() and a stream reader instead of
 // EventSource (EventSource cannot send headers); images that need the token are fetched

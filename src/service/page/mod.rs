@@ -155,7 +155,16 @@ mod tests {
         assert!(!INDEX_HTML.contains("<script>"));
         assert!(!INDEX_HTML.contains("<style"));
         assert!(!INDEX_HTML.contains(" style="));
-        assert!(!INDEX_HTML.to_ascii_lowercase().contains(" on"));
+        // No inline event handlers (` onclick=` and the like).
+        let lower = INDEX_HTML.to_ascii_lowercase();
+        for (i, _) in lower.match_indices(" on") {
+            let name: String = lower[i + 3..]
+                .chars()
+                .take_while(|c| c.is_ascii_alphabetic())
+                .collect();
+            let after = lower[i + 3 + name.len()..].trim_start();
+            assert!(!after.starts_with('='), "an inline handler on{name}=");
+        }
         // Data never goes through innerHTML.
         assert!(!APP_JS.contains("innerHTML"));
         assert!(!APP_JS.contains("insertAdjacentHTML"));
