@@ -10,6 +10,7 @@
 mod jobs;
 mod scenes;
 mod spec;
+mod thumbnails;
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -17,6 +18,7 @@ use std::sync::{Arc, Mutex};
 pub use jobs::{JobEvents, JobView};
 pub use scenes::{scene_info, SceneView, TraceIntake, UploadKind};
 pub use spec::{FramesSpec, RenderSpec, TraceParams};
+pub use thumbnails::{Thumbnail, THUMBNAIL_HEIGHT, THUMBNAIL_PRIORITY, THUMBNAIL_WIDTH};
 
 use crate::jobs::{Engine, JobError};
 use crate::store::{Store, StoreError};
@@ -113,6 +115,7 @@ struct Inner {
     scenes: scenes::SceneCache,
     live: Mutex<HashMap<String, jobs::Live>>,
     observer: Option<Arc<dyn Observer>>,
+    thumbnails: thumbnails::Thumbnails,
 }
 
 impl App {
@@ -120,13 +123,14 @@ impl App {
     /// runtime, whose handle the job threads use to reach the store.
     pub fn new(store: Store, engine: Arc<Engine>, options: AppOptions) -> App {
         App {
-            inner: Arc::new(Inner {
+            inner: Arc::new_cyclic(|weak| Inner {
                 store,
                 engine,
                 runtime: tokio::runtime::Handle::current(),
                 scenes: scenes::SceneCache::new(options.geometry_bytes),
                 live: Mutex::new(HashMap::new()),
                 observer: options.observer,
+                thumbnails: thumbnails::Thumbnails::new(weak.clone()),
             }),
         }
     }

@@ -112,6 +112,21 @@ pub fn scene_info(scene: &Scene) -> serde_json::Value {
     })
 }
 
+/// Longest name an upload may give, bytes (the store's bound on labels).
+const MAX_NAME: usize = 1024;
+
+/// Checks an upload's `name` before any work: 1 to [`MAX_NAME`] bytes, no control
+/// characters (it is shown in listings, and the store refuses anything else).
+fn check_name(name: &str) -> Result<(), AppError> {
+    if name.is_empty() || name.len() > MAX_NAME || name.chars().any(char::is_control) {
+        return Err(AppError::BadParameter {
+            field: "name",
+            detail: format!("must be 1 to {MAX_NAME} bytes without control characters"),
+        });
+    }
+    Ok(())
+}
+
 /// Parses an upload (CPU work: call on the pool).
 fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
     parse_with(kind, bytes, Parts::Geometry)
@@ -228,8 +243,13 @@ impl App {
         bytes: bytes::Bytes,
         name: Option<String>,
     ) -> Result<(SceneView, bool), AppError> {
+        if let Some(name) = &name {
+            check_name(name)?;
+        }
         let id = BlobId::of(&bytes);
         if let Ok(existing) = self.store().get_scene(id.as_str()).await {
+            // Uploading the bytes again is also how a failed thumbnail is tried again.
+            self.queue_thumbnail(&existing.id);
             return Ok((SceneView::from_record(existing), false));
         }
         let b = bytes.clone();
@@ -252,6 +272,8 @@ impl App {
                 shaded: std::sync::OnceLock::new(),
             }),
         );
+        // In the background, at the lowest priority: the answer does not wait for it.
+        self.queue_thumbnail(&record.id);
         Ok((SceneView::from_record(record), created))
     }
 
@@ -278,6 +300,7 @@ impl App {
         self.store().delete_scene(id).await?;
         self.inner.scenes.forget(id);
         self.engine().cache().forget_scene(id);
+        self.inner.thumbnails.forget(id);
         Ok(())
     }
 

@@ -111,19 +111,6 @@ pub async fn readyz(State(ready): State<Ready>) -> Response {
     }
 }
 
-/// `GET /`: what this server is and where its documents are.
-pub async fn index() -> Json<serde_json::Value> {
-    Json(json!({
-        "service": "rayd",
-        "version": env!("CARGO_PKG_VERSION"),
-        "api": "/v1",
-        "openapi": "/v1/openapi.json",
-        "health": "/healthz",
-        "ready": "/readyz",
-        "metrics": "/metrics",
-    }))
-}
-
 /// Waits for SIGTERM or SIGINT, then marks the service draining and triggers `shutdown`.
 /// Returns at once (spawning the waiter) so the caller can go on to serve.
 pub fn shutdown_on_signals(ready: Ready, shutdown: Shutdown) -> std::io::Result<()> {

@@ -24,6 +24,7 @@ pub mod extract;
 pub mod health;
 pub mod metrics;
 pub mod openapi;
+pub mod page;
 pub mod request_id;
 pub mod routes;
 pub mod server;
@@ -192,10 +193,13 @@ impl Routes {
     }
 }
 
-/// The routes that need no token: `/`, `/healthz`, `/readyz`, `/metrics`.
+/// The routes that need no token: `/` (the status page or the JSON index) and the page's
+/// assets, `/healthz`, `/readyz`, `/metrics`.
 fn public_routes() -> Routes {
     Routes::new()
-        .get("/", health::index)
+        .get("/", page::index)
+        .get(page::APP_JS_PATH, page::app_js)
+        .get(page::STYLE_CSS_PATH, page::style_css)
         .get("/healthz", health::healthz)
         .get("/readyz", health::readyz)
         .get("/metrics", metrics::metrics_handler)

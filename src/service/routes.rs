@@ -18,7 +18,7 @@ use super::body::{read_body_limited, BodyReader};
 use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
-use crate::app::{App, AppError, JobEvents, RenderSpec, TraceParams, UploadKind};
+use crate::app::{App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, UploadKind};
 use crate::formats::binary::{write_tri, BinaryError, Ray1Sink};
 use crate::jobs::JobError;
 use crate::store::StoreError;
@@ -39,6 +39,7 @@ pub fn routes() -> Routes {
         )
         .get("/v1/scenes", list_scenes)
         .get("/v1/scenes/{id}", get_scene)
+        .get("/v1/scenes/{id}/thumbnail", thumbnail)
         .delete("/v1/scenes/{id}", delete_scene)
         .method_router(
             Method::PUT,
@@ -182,17 +183,26 @@ fn location(path: String) -> HeaderValue {
     HeaderValue::from_str(&path).expect("ids are hex")
 }
 
+/// The upload route's query string.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct UploadParams {
+    /// A name for listings (the status page sends the file's name).
+    name: Option<String>,
+}
+
 /// `POST /v1/scenes`.
 async fn upload(
     State(state): State<AppState>,
     Extension(app): Extension<App>,
+    ApiQuery(params): ApiQuery<UploadParams>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
     let ct = media_type(&headers, &UploadKind::MEDIA_TYPES)?;
     let kind = UploadKind::from_media_type(ct).expect("accepted");
     let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
-    let (view, created) = app.upload(kind, body.bytes().clone(), None).await?;
+    let (view, created) = app.upload(kind, body.bytes().clone(), params.name).await?;
     drop(body);
     let status = if created {
         StatusCode::CREATED
@@ -234,6 +244,35 @@ async fn get_scene(
     ApiPath(id): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     Ok(Json(app.scene(&id).await?).into_response())
+}
+
+/// How long a request for a thumbnail that is still being made waits for it before it is
+/// answered 409 (small scenes are done well within it, unless other work holds the pool).
+const THUMBNAIL_WAIT: Duration = Duration::from_secs(5);
+
+/// `GET /v1/scenes/{id}/thumbnail`: a small PNG of the scene as uploaded.
+async fn thumbnail(
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    match app.thumbnail(&id, THUMBNAIL_WAIT).await? {
+        Thumbnail::Png(png) => {
+            let mut resp = Response::new(Body::from(png));
+            let h = resp.headers_mut();
+            h.insert(header::CONTENT_TYPE, HeaderValue::from_static("image/png"));
+            // A scene id names fixed bytes, so its thumbnail never changes; private, since
+            // it came with a token.
+            h.insert(
+                header::CACHE_CONTROL,
+                HeaderValue::from_static("private, max-age=3600"),
+            );
+            Ok(resp)
+        }
+        Thumbnail::Pending => Err(ApiError::conflict(format!(
+            "the thumbnail of scene {id} is still being rendered (thumbnails wait for other work); ask again after Retry-After seconds"
+        ))
+        .with_retry_after(1)),
+    }
 }
 
 /// `DELETE /v1/scenes/{id}`.
