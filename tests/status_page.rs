@@ -126,7 +126,12 @@ fn thumbnails_of_uploads_and_demo_scenes() {
     // Not a blank picture: the scene is in it.
     let decoder = png::Decoder::new(std::io::Cursor::new(&first));
     let mut reader = decoder.read_info().unwrap();
-    let mut pixels = vec![0; reader.output_buffer_size()];
+    let mut pixels = vec![
+        0;
+        reader
+            .output_buffer_size()
+            .expect("a thumbnail fits in memory")
+    ];
     reader.next_frame(&mut pixels).unwrap();
     let background = &pixels[..3];
     let covered = pixels.chunks(3).filter(|p| p != &background).count();

@@ -223,7 +223,12 @@ impl App {
         let rt = &self.inner.runtime;
         let frame_at = |_time: Option<f64>| {
             rt.block_on(self.geometry(id, Some(1), None))
-                .map(|(geometry, cameras)| FrameInput { geometry, cameras })
+                .map(|(geometry, cameras)| FrameInput {
+                    geometry,
+                    cameras,
+                    // A normals render reads no material.
+                    surfaces: None,
+                })
                 .map_err(|e| JobError::Geometry(e.to_string()))
         };
         // Re-admitted rather than admitted: a thumbnail never takes a client's place in the
