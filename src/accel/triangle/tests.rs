@@ -692,9 +692,11 @@ fn refined_t_is_clamped_into_the_interval() {
     let mut rng = Rng(9);
     let (mut below, mut above) = (0, 0);
     for _ in 0..2000 {
+        // Just above the plane (z = -69.91 at the origin), looking down at it: t ≈ 0.01–0.2.
+        let o = scale(rng.vec(), 0.1);
         let r = ray(
-            scale(rng.vec(), 0.1),
-            [rng.sym() * 0.3, rng.sym() * 0.3, 1.0],
+            [o[0], o[1], o[2] - 69.8],
+            [rng.sym() * 0.3, rng.sym() * 0.3, -1.0],
             0.0,
             f32::INFINITY,
         );
