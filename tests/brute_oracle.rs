@@ -382,7 +382,8 @@ fn check_ray(
     }
 }
 
-/// The exact reference: the scalar per-triangle test over all triangles, (t, id) minimum.
+/// The exact reference: the scalar per-triangle test over all triangles, (t, id) minimum,
+/// the winner's t then finished as the cores finish it.
 fn scalar_closest<T: TriTest>(r: &Ray, tris: &[Triangle]) -> Hit {
     let pr = PreparedRay::new(r);
     if pr.is_empty() {
@@ -400,6 +401,11 @@ fn scalar_closest<T: TriTest>(r: &Ray, tris: &[Triangle]) -> Hit {
                 };
             }
         }
+    }
+    // Decided and ordered by the test's t; the winner's t is then reported as every core
+    // reports it (refined for watertight, proto/semantics.md).
+    if best.is_hit() {
+        best.t = T::finish_t(r, &tris[best.prim as usize].v, best.t);
     }
     best
 }
