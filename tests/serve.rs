@@ -41,6 +41,31 @@ fn rays_at(bounds_min: [f32; 3], bounds_max: [f32; 3], n: usize) -> Vec<Ray> {
         .collect()
 }
 
+/// `rayd trace SCENE --rays RAYS --out OUT` with `[query, hit, accel]`: what the service's
+/// answer must equal byte for byte.
+fn cli_trace(
+    scene: &std::path::Path,
+    rays: &std::path::Path,
+    out: &std::path::Path,
+    [query, hit, accel]: [&str; 3],
+) {
+    let cli = Command::new(BIN)
+        .arg("trace")
+        .arg(scene)
+        .arg("--rays")
+        .arg(rays)
+        .arg("--out")
+        .arg(out)
+        .args(["--query", query, "--hit", hit, "--accel", accel])
+        .output()
+        .unwrap();
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+}
+
 #[test]
 fn the_service_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
@@ -108,17 +133,7 @@ fn the_service_end_to_end() {
         ("any", "occluded"),
     ] {
         let out = dir.path().join(format!("{query}-{hit}.hit"));
-        let cli = Command::new(BIN)
-            .args(["trace"])
-            .arg(&fox)
-            .arg("--rays")
-            .arg(&ray_file)
-            .arg("--out")
-            .arg(&out)
-            .args(["--query", query, "--hit", hit, "--accel", "mbvh8"])
-            .output()
-            .unwrap();
-        assert!(cli.status.success());
+        cli_trace(&fox, &ray_file, &out, [query, hit, "mbvh8"]);
         let r = s.req(
             "POST",
             &format!("/v1/scenes/{id}/trace?query={query}&hit={hit}&accel=mbvh8"),
@@ -143,17 +158,7 @@ fn the_service_end_to_end() {
         ("closest", "t", "dacrt"),
     ] {
         let out = dir.path().join(format!("big-{query}-{hit}.hit"));
-        let cli = Command::new(BIN)
-            .args(["trace"])
-            .arg(&fox)
-            .arg("--rays")
-            .arg(&big_file)
-            .arg("--out")
-            .arg(&out)
-            .args(["--query", query, "--hit", hit, "--accel", accel])
-            .output()
-            .unwrap();
-        assert!(cli.status.success());
+        cli_trace(&fox, &big_file, &out, [query, hit, accel]);
         let r = s.req(
             "POST",
             &format!("/v1/scenes/{id}/trace?query={query}&hit={hit}&accel={accel}"),

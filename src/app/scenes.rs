@@ -13,7 +13,7 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::{App, AppError, TraceParams};
-use crate::formats::binary::read_tri;
+use crate::formats::binary::{read_tri, tri_count};
 use crate::formats::{LoadOptions, Parts};
 use crate::geometry::{Ray, Triangle};
 use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
@@ -304,11 +304,8 @@ impl App {
         Ok(())
     }
 
-    /// The parsed static pose of scene `id`, parsing the stored bytes after a restart.
-    async fn loaded(&self, id: &str) -> Result<Arc<Loaded>, AppError> {
-        if let Some(l) = self.inner.scenes.lock().loaded.get(id) {
-            return Ok(Arc::clone(l));
-        }
+    /// Scene `id`'s stored bytes and what they are.
+    async fn stored(&self, id: &str) -> Result<(UploadKind, Vec<u8>), AppError> {
         let record = self.store().get_scene(id).await?;
         let kind = UploadKind::from_media_type(&record.content_type).ok_or_else(|| {
             AppError::Internal(format!(
@@ -316,9 +313,16 @@ impl App {
                 record.content_type
             ))
         })?;
-        let bytes = Arc::new(self.store().get_blob(id).await?);
-        let b = Arc::clone(&bytes);
-        let scene = self.cpu(move || parse(kind, &b)).await??;
+        Ok((kind, self.store().get_blob(id).await?))
+    }
+
+    /// The parsed static pose of scene `id`, parsing the stored bytes after a restart.
+    async fn loaded(&self, id: &str) -> Result<Arc<Loaded>, AppError> {
+        if let Some(l) = self.inner.scenes.lock().loaded.get(id) {
+            return Ok(Arc::clone(l));
+        }
+        let (kind, bytes) = self.stored(id).await?;
+        let scene = self.cpu(move || parse(kind, &bytes)).await??;
         let loaded = Arc::new(Loaded {
             scene: Arc::new(scene),
             shaded: std::sync::OnceLock::new(),
@@ -337,14 +341,7 @@ impl App {
         if let Some(s) = loaded.shaded.get() {
             return Ok(Arc::clone(s));
         }
-        let record = self.store().get_scene(id).await?;
-        let kind = UploadKind::from_media_type(&record.content_type).ok_or_else(|| {
-            AppError::Internal(format!(
-                "scene {id} has an unknown stored type {}",
-                record.content_type
-            ))
-        })?;
-        let bytes = self.store().get_blob(id).await?;
+        let (kind, bytes) = self.stored(id).await?;
         let scene = self
             .cpu(move || parse_with(kind, &bytes, Parts::Shading))
             .await??;
@@ -355,35 +352,24 @@ impl App {
     pub async fn update_geometry(&self, id: &str, body: bytes::Bytes) -> Result<i64, AppError> {
         let loaded = self.loaded(id).await?;
         let expected = loaded.scene.triangles.len();
-        // The count is in the header: a body for another scene is refused before any work.
-        if let Some(count) = tri_count(&body) {
-            if count != expected as u64 {
-                return Err(wrong_count(id, count, expected));
-            }
+        let bad = |e: crate::formats::binary::BinaryError| AppError::BadUpload {
+            detail: e.to_string(),
+            byte_offset: None,
+        };
+        // Header and length first, reading no record: a malformed body, or one for
+        // another scene, is refused before any work.
+        let count = tri_count(&body).map_err(bad)?;
+        if count != expected {
+            return Err(wrong_count(id, count as u64, expected));
         }
         // Parsing (on the pool) and the durable write (on a blocking thread) run at once:
         // a frame's update costs the longer of the two, not their sum. A body that turns
-        // out not to parse leaves an unnamed blob, which GC collects.
+        // out not to parse (a NaN) leaves an unnamed blob, which GC collects.
         let b = body.clone();
-        let (tris, blob) = tokio::join!(self.cpu(move || read_tri(&b)), async {
-            // Only a body whose header is right is worth storing before it parses.
-            if tri_count(&body).is_some() {
-                Some(self.store().put_blob(body.clone()).await)
-            } else {
-                None
-            }
-        });
-        let tris = tris?.map_err(|e| AppError::BadUpload {
-            detail: e.to_string(),
-            byte_offset: None,
-        })?;
-        if tris.len() != expected {
-            return Err(wrong_count(id, tris.len() as u64, expected));
-        }
-        let blob = match blob {
-            Some(stored) => stored?,
-            None => self.store().put_blob(body).await?,
-        };
+        let (tris, blob) =
+            tokio::join!(self.cpu(move || read_tri(&b)), self.store().put_blob(body));
+        let tris = tris?.map_err(bad)?;
+        let blob = blob?;
         let version = self.store().add_version(id, &blob).await?.version;
         self.inner.scenes.keep_geometry(
             GeometryKey::new(id, version as u32, None),
@@ -512,26 +498,31 @@ impl App {
             });
         };
         let (arrive, arrivals) = std::sync::mpsc::channel();
-        let (tx, done) = tokio::sync::oneshot::channel();
-        // The trace waits for the pool and for its rays on a thread of its own; its work
-        // runs on the pool.
-        std::thread::Builder::new()
-            .name("rayd-trace".into())
-            .spawn(move || {
-                let control = engine.control(Default::default(), None, ticket);
-                let result = engine.trace_stream(&geometry, &request, count, arrivals, &control);
-                let _ = tx.send(result);
-            })
-            .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
+        let done = on_trace_thread(move || {
+            let control = engine.control(Default::default(), None, ticket);
+            engine.trace_stream(&geometry, &request, count, arrivals, &control)
+        })?;
         Ok(TraceIntake::Streamed { arrive, done })
     }
 }
 
-/// The triangle count a TRI1 body's header announces, if the header is whole and its
-/// length agrees with the body's.
-fn tri_count(body: &[u8]) -> Option<u64> {
-    let count = u64::from_le_bytes(body.get(8..16)?.try_into().ok()?);
-    (body.get(..4)? == b"TRI1" && (body.len() as u128) == 16 + 36 * count as u128).then_some(count)
+/// What a synchronous trace answers, when its thread is done.
+type TraceDone =
+    tokio::sync::oneshot::Receiver<Result<(HitBody, TraceReport), crate::jobs::JobError>>;
+
+/// Runs a synchronous trace on a thread of its own, which waits for the scheduler's lease
+/// (and, streamed, for its rays) so that no runtime thread does; its work runs on the pool.
+fn on_trace_thread(
+    trace: impl FnOnce() -> Result<(HitBody, TraceReport), crate::jobs::JobError> + Send + 'static,
+) -> Result<TraceDone, AppError> {
+    let (tx, done) = tokio::sync::oneshot::channel();
+    std::thread::Builder::new()
+        .name("rayd-trace".into())
+        .spawn(move || {
+            let _ = tx.send(trace());
+        })
+        .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
+    Ok(done)
 }
 
 fn wrong_count(id: &str, got: u64, expected: usize) -> AppError {
@@ -562,7 +553,7 @@ pub enum TraceIntake {
         /// Where the rays go.
         arrive: std::sync::mpsc::Sender<trace::Arrival>,
         /// The answer.
-        done: tokio::sync::oneshot::Receiver<Result<(HitBody, TraceReport), crate::jobs::JobError>>,
+        done: TraceDone,
     },
 }
 
@@ -598,19 +589,11 @@ impl TraceIntake {
                 ticket,
             } => {
                 let mut rays = rays;
-                let (tx, done) = tokio::sync::oneshot::channel();
-                std::thread::Builder::new()
-                    .name("rayd-trace".into())
-                    .spawn(move || {
-                        let result = (|| {
-                            let invalid = trace::validate(&mut rays, request.invalid)?;
-                            let control = engine.control(Default::default(), None, ticket);
-                            engine.trace(&geometry, &rays, &request, invalid, &control)
-                        })();
-                        let _ = tx.send(result);
-                    })
-                    .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
-                done
+                on_trace_thread(move || {
+                    let invalid = trace::validate(&mut rays, request.invalid)?;
+                    let control = engine.control(Default::default(), None, ticket);
+                    engine.trace(&geometry, &rays, &request, invalid, &control)
+                })?
             }
         };
         Ok(done

@@ -477,13 +477,20 @@ pub fn write_rays(rays: &[Ray]) -> Vec<u8> {
     out
 }
 
+/// The triangle count of a TRI1 body whose header and length hold, reading no record: what
+/// [`read_tri`] checks before it reads the records.
+pub fn tri_count(bytes: &[u8]) -> Result<usize, BinaryError> {
+    parse_header(bytes, "TRI1", TRI1_MAGIC, "TRI1 has only format 0", |f| {
+        (f == 0).then_some(36)
+    })
+    .map(|h| h.count)
+}
+
 /// Reads a TRI1 body; a NaN or infinite coordinate is refused with its triangle and offset.
 pub fn read_tri(bytes: &[u8]) -> Result<Vec<Triangle>, BinaryError> {
-    let h = parse_header(bytes, "TRI1", TRI1_MAGIC, "TRI1 has only format 0", |f| {
-        (f == 0).then_some(36)
-    })?;
+    let count = tri_count(bytes)?;
     let body = &bytes[HEADER_BYTES..];
-    let mut tris = Vec::with_capacity(h.count);
+    let mut tris = Vec::with_capacity(count);
     for (index, rec) in body.chunks_exact(36).enumerate() {
         let mut t = Triangle::default();
         for (k, x) in t.v.iter_mut().flatten().enumerate() {

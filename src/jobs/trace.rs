@@ -117,52 +117,15 @@ impl Engine {
         invalid_rays: usize,
         control: &Control,
     ) -> Result<(HitBody, TraceReport), JobError> {
-        let limit = self.limits().max_rays;
-        if rays.len() > limit {
-            return Err(JobError::Limit {
-                what: "rays",
-                value: rays.len() as u64,
-                limit: limit as u64,
-            });
-        }
-        let kind = self.resolve(
-            request.accel,
-            geometry,
-            request.build,
-            request.precision,
-            rays.len(),
-            1,
-        );
-        let (body, accel, prepared_seconds, source, trace_seconds) = control.step(|| {
-            let prepared = self.structure(
-                geometry,
-                kind,
-                request.build,
-                request.precision,
-                rays.len(),
-                1,
-            )?;
+        let kind = self.batch_accel(geometry, request, rays.len())?;
+        let (body, prepared, trace_seconds) = control.step(|| {
+            let prepared = self.batch_structure(geometry, kind, request, rays.len())?;
             let t0 = Instant::now();
             let body = trace_into_body(prepared.accel.as_ref(), rays, request);
-            let trace_seconds = seconds_since(t0);
-            Ok::<_, JobError>((
-                body,
-                prepared.accel.name(),
-                prepared.build_seconds,
-                prepared.source,
-                trace_seconds,
-            ))
+            Ok::<_, JobError>((body, prepared, seconds_since(t0)))
         })??;
         control.progress(1.0);
-        let report = self.report(
-            rays.len(),
-            accel,
-            prepared_seconds,
-            trace_seconds,
-            request,
-            source,
-            invalid_rays,
-        );
+        let report = self.report(rays.len(), &prepared, trace_seconds, request, invalid_rays);
         Ok((body, report))
     }
 }
@@ -273,14 +236,7 @@ impl Engine {
     /// own (every core but DACRT's, which partitions the whole batch at once and likes it
     /// large), and the batch is large enough to span several segments.
     pub fn streams(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> bool {
-        let kind = self.resolve(
-            request.accel,
-            geometry,
-            request.build,
-            request.precision,
-            rays,
-            1,
-        );
+        let kind = self.batch_kind(geometry, request, rays);
         rays > STREAM_SEGMENT_RAYS && !matches!(kind, AccelKind::Dacrt | AccelKind::DacrtSampled)
     }
 
@@ -299,25 +255,8 @@ impl Engine {
         arrivals: std::sync::mpsc::Receiver<Arrival>,
         control: &Control,
     ) -> Result<(HitBody, TraceReport), JobError> {
-        let limit = self.limits().max_rays;
-        if count > limit {
-            return Err(JobError::Limit {
-                what: "rays",
-                value: count as u64,
-                limit: limit as u64,
-            });
-        }
-        let kind = self.resolve(
-            request.accel,
-            geometry,
-            request.build,
-            request.precision,
-            count,
-            1,
-        );
-        let prepared = control.step(|| {
-            self.structure(geometry, kind, request.build, request.precision, count, 1)
-        })??;
+        let kind = self.batch_accel(geometry, request, count)?;
+        let prepared = control.step(|| self.batch_structure(geometry, kind, request, count))??;
         let accel = prepared.accel.as_ref();
         let mut out = BodyWriter::new(request.hit, count);
         let replace = request.invalid == InvalidPolicy::Miss;
@@ -370,34 +309,64 @@ impl Engine {
             });
         }
         control.progress(1.0);
-        let report = self.report(
-            count,
-            accel.name(),
-            prepared.build_seconds,
-            trace_seconds,
-            request,
-            prepared.source,
-            invalid_rays,
-        );
+        let report = self.report(count, &prepared, trace_seconds, request, invalid_rays);
         Ok((out.finish(), report))
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// What `auto` resolves a trace of one batch of `rays` rays with `request` to.
+    fn batch_kind(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> AccelKind {
+        self.resolve(
+            request.accel,
+            geometry,
+            request.build,
+            request.precision,
+            rays,
+            1,
+        )
+    }
+
+    /// [`Engine::batch_kind`], after checking the batch against the ray limit.
+    fn batch_accel(
+        &self,
+        geometry: &Geometry,
+        request: &TraceRequest,
+        rays: usize,
+    ) -> Result<AccelKind, JobError> {
+        let limit = self.limits().max_rays;
+        if rays > limit {
+            return Err(JobError::Limit {
+                what: "rays",
+                value: rays as u64,
+                limit: limit as u64,
+            });
+        }
+        Ok(self.batch_kind(geometry, request, rays))
+    }
+
+    /// The structure of `kind` for one batch of `rays` rays (inside a step).
+    fn batch_structure(
+        &self,
+        geometry: &Geometry,
+        kind: AccelKind,
+        request: &TraceRequest,
+        rays: usize,
+    ) -> Result<super::engine::Prepared, JobError> {
+        self.structure(geometry, kind, request.build, request.precision, rays, 1)
+    }
+
     fn report(
         &self,
         rays: usize,
-        accel: &'static str,
-        build_seconds: f64,
+        prepared: &super::engine::Prepared,
         trace_seconds: f64,
         request: &TraceRequest,
-        structure: Source,
         invalid_rays: usize,
     ) -> TraceReport {
         TraceReport {
             rays,
-            accel,
+            accel: prepared.accel.name(),
             threads: self.threads(),
-            build_seconds,
+            build_seconds: prepared.build_seconds,
             trace_seconds,
             mrays_per_s: if trace_seconds > 0.0 {
                 rays as f64 / trace_seconds / 1e6
@@ -409,7 +378,7 @@ impl Engine {
             precision: request.precision,
             build: request.build,
             simd: crate::simd::selected().name(),
-            structure,
+            structure: prepared.source,
             invalid_rays,
         }
     }

@@ -92,17 +92,6 @@ impl PreparedRay {
         }
     }
 
-    /// The ray this was prepared from.
-    #[inline(always)]
-    pub fn ray(&self) -> Ray {
-        Ray {
-            org: self.org,
-            tmin: self.tmin,
-            dir: self.dir,
-            tmax: self.tmax,
-        }
-    }
-
     /// Whether the interval `[tmin, tmax]` is empty (or NaN): such rays miss everything.
     #[inline]
     pub fn is_empty(&self) -> bool {
@@ -378,21 +367,17 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
 /// then [`TriTest::finish_t`] (a convenience for callers that hold a [`Precision`] value
 /// rather than a test type).
 pub fn intersect(precision: Precision, ray: &Ray, tri: &Triangle) -> Option<TriHit> {
-    fn go<T: TriTest>(ray: &Ray, tri: &Triangle) -> Option<TriHit> {
-        let r = PreparedRay::new(ray);
-        if r.is_empty() {
-            return None;
-        }
-        let h = T::intersect_triangle(&r, tri)?;
-        Some(TriHit {
+    fn finish<T: TriTest>(ray: &Ray, tri: &Triangle, h: TriHit) -> TriHit {
+        TriHit {
             t: T::finish_t(ray, &T::lane_data(tri), h.t),
             ..h
-        })
+        }
     }
-    match precision {
-        Precision::Fast => go::<MollerTrumbore>(ray, tri),
-        Precision::Watertight => go::<Watertight>(ray, tri),
-    }
+    let h = intersect_unrefined(precision, ray, tri)?;
+    Some(match precision {
+        Precision::Fast => finish::<MollerTrumbore>(ray, tri, h),
+        Precision::Watertight => finish::<Watertight>(ray, tri, h),
+    })
 }
 
 /// The test's own hit of `ray` on one triangle, before [`TriTest::finish_t`]: what the
