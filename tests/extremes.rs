@@ -81,8 +81,8 @@ fn addv(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 /// Checks one hit of `kind` against the written bounds: a real hit on its triangle's
 /// plane with t (and u, v) within [`t_bound`] ([`uv_bound`]) of the f64 values there, and
 /// inside the ray's interval; a t clamped to an end of the interval within the larger of
-/// [`t_bound`] and [`order_t_bound`]. `embree` is held to 1e-4 relative on clear-cut hits
-/// only.
+/// [`t_bound`] and [`order_t_bound`]. `embree`, the peer, keeps its own rules: its t is
+/// held to 1e-4 of the larger of t and the triangle's reach from the origin.
 fn check_hit(kind: AccelKind, precision: Precision, r: &Ray, tris: &[Triangle], h: &Hit) {
     if !h.is_hit() {
         return;
@@ -96,7 +96,27 @@ fn check_hit(kind: AccelKind, precision: Precision, r: &Ray, tris: &[Triangle], 
     let line = oracle_line_f64(r, tri).unwrap_or_else(|| panic!("hit a parallel plane: {what}"));
     let t = f64::from(h.t);
     if kind == AccelKind::Embree {
-        assert!((t - line.t).abs() <= 1e-4 * line.t.abs() + 1e-30, "{what}");
+        // Embree's f32 t is accurate relative to how far the triangle reaches from the
+        // origin, not to the hit's distance: on a 1000-unit triangle hit at t ≈ 0.05 it was
+        // 6.8e-4 off relative to t. Held to 1e-4 of the larger of the two.
+        let norm = |a: [f32; 3]| {
+            a.iter()
+                .map(|&c| f64::from(c) * f64::from(c))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let reach = tri
+            .v
+            .iter()
+            .map(|&p| norm(sub(p, r.org)))
+            .fold(0.0, f64::max)
+            / norm(r.dir);
+        assert!(
+            (t - line.t).abs() <= 1e-4 * line.t.abs().max(reach) + 1e-30,
+            "{what}: exact {} (relative error {:e})",
+            line.t,
+            (t - line.t).abs() / line.t.abs()
+        );
         return;
     }
     let mut tol = t_bound(precision, r, tri, line.t);

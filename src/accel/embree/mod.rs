@@ -380,7 +380,7 @@ impl Embree {
     /// Closest hit of one ray (Embree's rules), or the miss.
     #[inline]
     fn intersect(&self, context: &mut ffi::RTCIntersectContext, ray: &Ray) -> Hit {
-        if empty_interval(ray) {
+        if !reaches_embree(ray) {
             return Hit::MISS;
         }
         let mut rayhit = ffi::RTCRayHit {
@@ -411,7 +411,7 @@ impl Embree {
     /// Whether one ray hits anything in its interval (Embree's rules).
     #[inline]
     fn occluded1(&self, context: &mut ffi::RTCIntersectContext, ray: &Ray) -> bool {
-        if empty_interval(ray) {
+        if !reaches_embree(ray) {
             return false;
         }
         let mut r = to_embree(ray);
@@ -419,6 +419,26 @@ impl Embree {
         unsafe { ffi::rtcOccluded1(self.scene.0.as_ptr(), context, &mut r) };
         r.tfar == f32::NEG_INFINITY
     }
+}
+
+/// Embree's bound on coordinates (`FLT_LARGE`, 1.844e18): its ray check asserts that every
+/// origin and direction component lies within it.
+const EMBREE_LARGE: f32 = 1.844e18;
+
+/// Whether `ray` may be handed to Embree: its interval holds some t and starts at 0 or
+/// later, and its origin and direction pass Embree's own ray checks (`RayK::valid` and
+/// `tnear >= 0`, assertions in Debian's build, which abort the process). Other rays miss without reaching it: the contract calls them
+/// invalid, and a library caller who did not validate still gets an answer, as from every
+/// core.
+#[inline]
+fn reaches_embree(ray: &Ray) -> bool {
+    !empty_interval(ray)
+        && ray.tmin >= 0.0
+        && ray
+            .org
+            .iter()
+            .chain(&ray.dir)
+            .all(|c| c.abs() <= EMBREE_LARGE)
 }
 
 /// Whether `[tmin, tmax]` holds no t at all: `tmin > tmax`, `tmin = +inf`, or a NaN bound.
@@ -706,6 +726,15 @@ mod tests {
         assert!(empty_interval(&r(0.0, f32::NAN)));
         assert!(!empty_interval(&r(1.0, 1.0)));
         assert!(!empty_interval(&r(0.0, f32::INFINITY)));
+        // Coordinates Embree's ray check refuses (NaN fails every comparison).
+        let mut bad = r(0.0, 1.0);
+        assert!(reaches_embree(&bad));
+        bad.org[1] = f32::NAN;
+        assert!(!reaches_embree(&bad));
+        bad.org[1] = 0.0;
+        bad.dir[2] = f32::NEG_INFINITY;
+        assert!(!reaches_embree(&bad));
+        assert!(!reaches_embree(&r(-1.0, 1.0)));
     }
 
     #[test]
