@@ -128,6 +128,7 @@ mod tests {
         round_trip::<Integrator>();
         round_trip::<ImageFormat>();
         round_trip::<crate::jobs::InvalidPolicy>();
+        round_trip::<crate::jobs::Update>();
     }
 
     #[test]

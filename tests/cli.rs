@@ -411,3 +411,60 @@ fn mbvh_statistics_are_printed_by_info_and_bench() {
         }
     }
 }
+
+#[test]
+fn render_frames_update_policy_decides_refit_or_rebuild() {
+    // Frame 0 always builds; later frames of the walking fox refit or rebuild as told, and
+    // the images do not depend on it beyond what a refit's looser boxes cannot change.
+    let dir = tempfile::tempdir().unwrap();
+    let mut images = Vec::new();
+    for (update, later) in [("rebuild", "built"), ("refit", "refitted")] {
+        let out = dir.path().join(format!("{update}-#.png"));
+        let (ok, j, err) = rayd(&[
+            "render",
+            &sample("Fox.glb"),
+            "--out",
+            p(&out),
+            "--width",
+            "32",
+            "--height",
+            "24",
+            "--accel",
+            "mbvh8",
+            "--frames",
+            "0:0.2:0.1",
+            "--update",
+            update,
+            "--threads",
+            "1",
+        ]);
+        assert!(ok, "{update}: {err}");
+        let frames = j["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 3, "{j}");
+        assert_eq!(frames[0]["structure"], "built", "{j}");
+        for f in &frames[1..] {
+            assert_eq!(f["structure"], later, "{update}: {j}");
+        }
+        images.push(
+            j["outputs"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|o| std::fs::read(o.as_str().unwrap()).unwrap())
+                .collect::<Vec<_>>(),
+        );
+    }
+    assert_eq!(
+        images[0], images[1],
+        "a refit must not change what a frame shows"
+    );
+    let (ok, _, err) = rayd(&[
+        "render",
+        &sample("Fox.glb"),
+        "--out",
+        "x.png",
+        "--update",
+        "never",
+    ]);
+    assert!(!ok && err.contains("never"), "{err}");
+}

@@ -139,6 +139,9 @@ pub struct RenderSpec {
     /// Animation times: one image per time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frames: Option<FramesSpec>,
+    /// How each frame over moved geometry gets its BVH: `auto`, `refit` or `rebuild`.
+    #[serde(default)]
+    pub update: crate::jobs::Update,
     /// 0–100, higher first.
     #[serde(default = "default_priority")]
     pub priority: u8,
@@ -262,6 +265,7 @@ impl RenderSpec {
                 precision: self.precision,
                 sky,
                 aovs,
+                update: self.update,
             },
             times,
         ))

@@ -8,7 +8,7 @@ use serde_json::json;
 use super::{CameraArgs, CliError, CoreArgs, PathArg};
 use crate::formats::{FormatError, Parts};
 use crate::jobs::render::{frame_times, FrameInput};
-use crate::jobs::{Geometry, GeometryKey, RenderRequest};
+use crate::jobs::{Geometry, GeometryKey, RenderRequest, Update};
 use crate::render::image::ImageFormat;
 use crate::render::surface::Surfaces;
 use crate::render::{Aov, AovSet, Integrator};
@@ -50,6 +50,10 @@ pub(super) struct RenderArgs {
     /// Animation times START:END:STEP (seconds): one image per time.
     #[arg(long, conflicts_with = "time")]
     frames: Option<String>,
+    /// How each frame over moved geometry gets its BVH: auto (the cost model), refit
+    /// (whenever a structure of the scene is cached) or rebuild (every frame).
+    #[arg(long, value_enum, default_value_t = Update::Auto)]
+    update: Update,
     #[command(flatten)]
     core: CoreArgs,
 }
@@ -112,6 +116,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         precision: a.core.precision,
         sky: a.sky.map(|x| x as f32),
         aovs: AovSet::of(&a.aov),
+        update: a.update,
     };
     request.check(engine.limits(), times.len())?;
     let path = a.scene.display().to_string();

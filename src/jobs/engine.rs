@@ -37,6 +37,25 @@ impl Default for EngineOptions {
     }
 }
 
+/// How a job over moved geometry gets its BVH when a structure over other positions of the
+/// same scene is cached: the cost model's choice, always a refit, or always a new build.
+/// `rebuild` is what a renderer without refitting does each frame; rayd measures against it.
+#[derive(
+    Clone, Copy, Debug, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum Update {
+    /// Refit when `auto`'s model expects the refit (and its slower trace) to finish first.
+    #[default]
+    Auto,
+    /// Refit whenever a structure to refit is cached.
+    Refit,
+    /// Build anew; never refit.
+    Rebuild,
+}
+
+crate::spelled!(Update, [Update::Auto, Update::Refit, Update::Rebuild]);
+
 /// Where a job's structure came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -197,9 +216,11 @@ impl Engine {
     }
 
     /// The structure of `kind` (resolved) over `geometry`: from the cache, refitted from a
-    /// cached structure over other positions of the same scene when the cost model expects
-    /// that to finish first (`rays` and `batches` describe the job), or built, and kept in
-    /// the cache. Call inside the pool (a [`Control::step`]).
+    /// cached structure over other positions of the same scene when `update` says so (under
+    /// [`Update::Auto`], when the cost model expects that to finish first; `rays` and
+    /// `batches` describe the job), or built, and kept in the cache. Call inside the pool (a
+    /// [`Control::step`]).
+    #[allow(clippy::too_many_arguments)]
     pub fn structure(
         &self,
         geometry: &Geometry,
@@ -208,6 +229,7 @@ impl Engine {
         precision: Precision,
         rays: usize,
         batches: usize,
+        update: Update,
     ) -> Result<Prepared, JobError> {
         let key = self.key(geometry, kind, quality, precision);
         if let Some(accel) = self.cache.get(&key) {
@@ -221,6 +243,9 @@ impl Engine {
         let options = self.build_options(quality, precision);
         let geometry_triangles = geometry.triangles.len();
         let refit_pays = || {
+            if update != Update::Auto {
+                return update == Update::Refit;
+            }
             let job = |geometry| auto::Job {
                 rays,
                 batches,

@@ -43,6 +43,8 @@ pub struct RenderRequest {
     pub sky: [f32; 3],
     /// AOV channels to add (EXR only).
     pub aovs: AovSet,
+    /// How a frame over moved geometry gets its BVH: refit or rebuild.
+    pub update: super::Update,
 }
 
 impl Default for RenderRequest {
@@ -61,6 +63,7 @@ impl Default for RenderRequest {
             precision: Precision::Watertight,
             sky: [1.0; 3],
             aovs: AovSet::default(),
+            update: super::Update::Auto,
         }
     }
 }
@@ -268,7 +271,15 @@ impl Engine {
                 batches,
             );
             let prepared = control.step(|| {
-                self.structure(g, kind, request.build, request.precision, rays, batches)
+                self.structure(
+                    g,
+                    kind,
+                    request.build,
+                    request.precision,
+                    rays,
+                    batches,
+                    request.update,
+                )
             })??;
             let options = RenderOptions {
                 width: request.width,

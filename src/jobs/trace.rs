@@ -351,7 +351,15 @@ impl Engine {
         request: &TraceRequest,
         rays: usize,
     ) -> Result<super::engine::Prepared, JobError> {
-        self.structure(geometry, kind, request.build, request.precision, rays, 1)
+        self.structure(
+            geometry,
+            kind,
+            request.build,
+            request.precision,
+            rays,
+            1,
+            super::Update::Auto,
+        )
     }
 
     fn report(
