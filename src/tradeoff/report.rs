@@ -126,8 +126,9 @@ pub fn markdown(report: &Report) -> String {
 /// Plot size in pixels.
 const PLOT: (u32, u32) = (960, 640);
 
-/// Registers the embedded font under plotters' `sans-serif` name, once per process.
-fn register_font() -> Result<(), TradeoffError> {
+/// Registers the embedded font under plotters' `sans-serif` name, once per process: call
+/// before drawing text with plotters.
+pub fn register_font() -> Result<(), TradeoffError> {
     static LOADED: OnceLock<bool> = OnceLock::new();
     let loaded = *LOADED.get_or_init(|| {
         plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular())
@@ -158,6 +159,16 @@ fn log_bounds(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
         (lo.min(v), hi.max(v))
     });
     (lo.is_finite() && hi > 0.0).then(|| (lo / 10f64.powf(0.2), hi * 10f64.powf(0.2)))
+}
+
+/// A tick label: the value to six significant digits, without binary noise
+/// (`0.30000000000000004` → `0.3`).
+fn tick(v: f64) -> String {
+    if !(v.is_finite() && v != 0.0) {
+        return format!("{v}");
+    }
+    let scale = 10f64.powi(5 - v.abs().log10().floor() as i32);
+    format!("{}", (v * scale).round() / scale)
 }
 
 /// RMSE against seconds per frame, both on log scales: one colour per axis, the Pareto
@@ -193,6 +204,8 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
             .configure_mesh()
             .x_desc("seconds per frame (build + trace + shade)")
             .y_desc("RMSE against the reference")
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| tick(*v))
             .label_style(("sans-serif", 14))
             .axis_desc_style(("sans-serif", 15))
             .draw()
@@ -247,8 +260,9 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
     encode_rgb8(&rgb, w, h)
 }
 
-/// An 8-bit RGB PNG of `rgb` (already display-ready: no colour conversion).
-fn encode_rgb8(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, TradeoffError> {
+/// An 8-bit RGB PNG of `rgb` (already display-ready: no colour conversion), as plotters'
+/// bitmap backend leaves it.
+pub fn encode_rgb8(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, TradeoffError> {
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, w, h);
@@ -333,6 +347,13 @@ mod tests {
         assert!(rows[3].starts_with("| accel | accel=bvh2 |"));
         assert!(rows[3].ends_with("|  |"));
         assert!(text.contains("Not measured: roulette: not yet."));
+    }
+
+    #[test]
+    fn ticks_lose_binary_noise() {
+        assert_eq!(tick(0.1 + 0.2), "0.3");
+        assert_eq!(tick(0.001), "0.001");
+        assert_eq!(tick(40.0), "40");
     }
 
     #[test]
