@@ -81,7 +81,7 @@ pub fn log_log_slope(points: &[(f64, f64)]) -> Option<f64> {
     let my = logs.iter().map(|p| p.1).sum::<f64>() / n;
     let sxx: f64 = logs.iter().map(|p| (p.0 - mx) * (p.0 - mx)).sum();
     let sxy: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-    (sxx > 0.0).then(|| sxy / sxx)
+    (sxx > 0.0).then_some(sxy / sxx)
 }
 
 #[cfg(test)]
