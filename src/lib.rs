@@ -25,3 +25,4 @@ pub mod scene;
 pub mod service;
 pub mod simd;
 pub mod store;
+pub mod tradeoff;

@@ -1,5 +1,5 @@
 //! The command line (contract §4): `info`, `trace`, `render`, `bench`, `serve`,
-//! `healthcheck` and `backup`.
+//! `healthcheck`, `backup` and `tradeoff`.
 //!
 //! Each command prints one JSON object on stdout and exits 0, or prints a clear message on
 //! stderr and exits non-zero. Parsing happens here; the work happens in the library.
@@ -10,6 +10,7 @@ mod info;
 mod render;
 mod serve;
 mod trace;
+mod tradeoff;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -67,6 +68,9 @@ pub enum CliError {
     /// The store failed.
     #[error(transparent)]
     Store(#[from] crate::store::StoreError),
+    /// A trade-off run failed.
+    #[error(transparent)]
+    Tradeoff(#[from] crate::tradeoff::TradeoffError),
 }
 
 #[derive(Parser, Debug)]
@@ -96,6 +100,8 @@ enum Command {
     Healthcheck(serve::HealthcheckArgs),
     /// Copy a data directory (live or not) to a new directory that opens as a store.
     Backup(backup::BackupArgs),
+    /// Render a ladder of settings and measure each one's time and error against a reference.
+    Tradeoff(tradeoff::TradeoffArgs),
 }
 
 /// Runs the command line and turns the outcome into an exit code.
@@ -111,6 +117,7 @@ pub fn main() -> ExitCode {
             Command::Serve(a) => serve::run(a),
             Command::Healthcheck(a) => serve::healthcheck(a),
             Command::Backup(a) => backup::run(a),
+            Command::Tradeoff(a) => tradeoff::run(a),
         });
     match result {
         Ok(json) => {

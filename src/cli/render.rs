@@ -1,16 +1,13 @@
 //! `rayd render SCENE -o OUT.png|OUT.exr`, run by the same engine as the service's render
 //! jobs.
 
-use std::sync::Arc;
-
 use serde_json::json;
 
 use super::{CameraArgs, CliError, CoreArgs, PathArg};
 use crate::formats::{FormatError, Parts};
 use crate::jobs::render::{frame_times, FrameInput};
-use crate::jobs::{Geometry, GeometryKey, RenderRequest, Update};
+use crate::jobs::{GeometryKey, RenderRequest, Update};
 use crate::render::image::ImageFormat;
-use crate::render::surface::Surfaces;
 use crate::render::{Aov, AovSet, Integrator};
 
 #[derive(clap::Args, Debug)]
@@ -140,19 +137,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             ),
         };
         let s = posed.as_ref().unwrap_or(&scene);
-        Ok(FrameInput {
-            geometry: Geometry {
-                key: GeometryKey::new(&path, 1, time),
-                triangles: Arc::new(s.triangles.clone()),
-            },
-            cameras: Arc::new(s.cameras.clone()),
-            surfaces: match surfaces {
-                true => Some(Arc::new(Surfaces::of(s).map_err(|e| {
-                    crate::jobs::JobError::Geometry(format!("{path}: {e}"))
-                })?)),
-                false => None,
-            },
-        })
+        FrameInput::of_scene(s, GeometryKey::new(&path, 1, time), surfaces)
     };
     let pattern = a.out.display().to_string();
     let mut written = Vec::new();

@@ -165,6 +165,34 @@ pub struct FrameInput {
     pub surfaces: Option<Arc<Surfaces>>,
 }
 
+impl FrameInput {
+    /// The frame of `scene`, already posed at the frame's time, under `key`; with
+    /// `surfaces` (the request [`RenderRequest::needs_surfaces`]) its materials, shading
+    /// attributes and lights too. `rayd render` and `rayd tradeoff` make their frames here.
+    pub fn of_scene(
+        scene: &crate::scene::Scene,
+        key: super::GeometryKey,
+        surfaces: bool,
+    ) -> Result<FrameInput, JobError> {
+        let surfaces = match surfaces {
+            true => {
+                Some(Arc::new(Surfaces::of(scene).map_err(|e| {
+                    JobError::Geometry(format!("{}: {e}", key.scene))
+                })?))
+            }
+            false => None,
+        };
+        Ok(FrameInput {
+            geometry: Geometry {
+                key,
+                triangles: Arc::new(scene.triangles.clone()),
+            },
+            cameras: Arc::new(scene.cameras.clone()),
+            surfaces,
+        })
+    }
+}
+
 /// Where one frame's time went.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct FrameTimes {
