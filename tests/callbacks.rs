@@ -4,7 +4,8 @@
 //! `--callback-allow` is refused at submission; a delivery a `kill -9` interrupted is
 //! finished by the next start (`proto/service.md`, "Callbacks").
 
-mod common;
+#[path = "common/server.rs"]
+mod server;
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -13,7 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use common::server::{scenes, wait_job, Server};
+use server::{scenes, wait_job, Server};
 use hmac::{KeyInit, Mac};
 
 const SECRET: &str = "callback test secret, 32 bytes.";
@@ -194,7 +195,7 @@ fn upload(s: &Server) -> String {
     r.json()["id"].as_str().unwrap().to_string()
 }
 
-fn render(s: &Server, scene: &str, spec: serde_json::Value) -> common::server::Resp {
+fn render(s: &Server, scene: &str, spec: serde_json::Value) -> server::Resp {
     s.req(
         "POST",
         &format!("/v1/scenes/{scene}/render"),

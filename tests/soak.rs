@@ -11,12 +11,15 @@
 //! (`scripts/plot_soak.py`); the driver is `tests/common/load.rs`, which the load script
 //! shares.
 
-mod common;
+#[path = "common/load.rs"]
+mod load;
+#[path = "common/server.rs"]
+mod server;
 
 use std::time::Duration;
 
-use common::load::{self, Kind, Plan, ServerProc};
-use common::server::{scenes, BIN};
+use load::{Kind, Plan, ServerProc};
+use server::{scenes, BIN};
 
 #[test]
 fn soak() {

@@ -1021,7 +1021,8 @@ pub fn run(plan: &Plan, server: &ServerProc, fx: &Fixture) -> Report {
             }
         });
         if let Some(every) = plan.restart_every {
-            s.spawn(|| {
+            let (errors, restarts) = (&errors, &restarts);
+            s.spawn(move || {
                 let mut kill = true;
                 let mut next = Instant::now() + every;
                 while Instant::now() + Duration::from_secs(2) < deadline {
@@ -1095,7 +1096,7 @@ pub fn run(plan: &Plan, server: &ServerProc, fx: &Fixture) -> Report {
         errors: errors.into_inner().unwrap(),
         seconds,
         rss: rss.into_inner().unwrap(),
-        restarts: *restarts.lock().unwrap(),
+        restarts: restarts.into_inner().unwrap(),
         client_cpu: cpu_seconds("self") - cpu0,
         server_cpu: server.cpu() - server_cpu0,
     }
