@@ -14,8 +14,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use server::{scenes, wait_job, Server};
 use hmac::{KeyInit, Mac};
+use server::{scenes, wait_job, Server};
 
 const SECRET: &str = "callback test secret, 32 bytes.";
 

@@ -58,7 +58,7 @@ impl Kind {
     pub fn name(self) -> &'static str {
         match self {
             Kind::SmallTrace => "small trace (1K rays)",
-            Kind::LargeTrace => "large trace (256K rays)",
+            Kind::LargeTrace => "large trace",
             Kind::Render => "render 48x32 (submit to PNG)",
             Kind::Geometry => "geometry update (PUT)",
             Kind::Cancel => "render cancelled",
