@@ -18,7 +18,6 @@
 //!   threads (`trace_seconds`, median of 3), and the CPU seconds of the clients (this
 //!   process) and of the server.
 
-#[allow(dead_code)]
 #[path = "../tests/common/load.rs"]
 mod load;
 
