@@ -7,7 +7,8 @@
 //! answer the same after it; the only failures allowed are `503`s with `Retry-After` and
 //! requests broken by a restart, both retried. The server's RSS is sampled every 250 ms
 //! and, after the warm-up (the first quarter, at least 10 s), held to 1.5 × the warm-up
-//! peak + 64 MiB. `RAYD_SOAK_CSV=FILE` writes the RSS samples for a plot
+//! peak + 64 MiB, with `--cache-bytes` at 64 MiB and small traces choosing among version 1
+//! and the 8 latest versions, so that the working set does not grow with the run. `RAYD_SOAK_CSV=FILE` writes the RSS samples for a plot
 //! (`scripts/plot_soak.py`); the driver is `tests/common/load.rs`, which the load script
 //! shares.
 
@@ -46,8 +47,14 @@ fn soak() {
         large_rays: 1 << 16,
         serve_args: Vec::new(),
     };
-    let server = ServerProc::start(&plan.bin, &dir.path().join("data"), plan.threads, &[])
-        .expect("rayd serve starts");
+    // A small structure cache, so that its budget, not the machine, bounds what it holds.
+    let server = ServerProc::start(
+        &plan.bin,
+        &dir.path().join("data"),
+        plan.threads,
+        &["--cache-bytes".to_string(), (64u64 << 20).to_string()],
+    )
+    .expect("rayd serve starts");
     let fixture = load::Fixture::prepare(&plan, &server, dir.path()).expect("the fixture");
     let report = load::run(&plan, &server, &fixture);
 
