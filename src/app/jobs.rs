@@ -14,12 +14,13 @@ use std::time::Instant;
 use serde::Serialize;
 use tokio::sync::watch;
 
+use super::callbacks::CallbackView;
 use super::{App, AppError, RenderSpec, TraceParams};
 use crate::geometry::Ray;
 use crate::jobs::render::FrameInput;
 use crate::jobs::{sched, trace, CancelToken, JobError};
 use crate::render::surface::Surfaces;
-use crate::store::{BlobId, JobKind, JobOutcome, JobRecord, JobState, NewJob};
+use crate::store::{BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob};
 
 /// A job as the API shows it (contract §5).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -52,10 +53,20 @@ pub struct JobView {
     pub results: usize,
     /// The request, as resolved at submission.
     pub request: serde_json::Value,
+    /// A render's callback and its delivery; absent when the job has none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub callback: Option<CallbackView>,
 }
 
 impl JobView {
     fn from_record(r: &JobRecord) -> JobView {
+        let request: serde_json::Value =
+            serde_json::from_str(&r.request).unwrap_or(serde_json::Value::Null);
+        // Until the store's delivery record is read, a callback shows as owed.
+        let callback = match (r.kind, request.get("callback").and_then(|c| c.as_str())) {
+            (JobKind::Render, Some(url)) => Some(CallbackView::pending(url)),
+            _ => None,
+        };
         JobView {
             id: r.id.clone(),
             kind: r.kind,
@@ -77,7 +88,8 @@ impl JobView {
                 .and_then(|s| serde_json::from_str(s).ok()),
             error: r.error.clone(),
             results: r.result_frames.len().max(usize::from(r.result.is_some())),
-            request: serde_json::from_str(&r.request).unwrap_or(serde_json::Value::Null),
+            request,
+            callback,
         }
     }
 }
@@ -118,7 +130,18 @@ impl App {
         if let Some(l) = self.live(id) {
             view.progress = view.progress.max(l.borrow().progress);
         }
+        self.with_callback(&mut view).await?;
         Ok(view)
+    }
+
+    /// Fills in the delivery state of a job's callback from the store.
+    async fn with_callback(&self, view: &mut JobView) -> Result<(), AppError> {
+        if view.callback.is_some() {
+            if let Some(c) = self.store().get_callback(&view.id).await? {
+                view.callback = Some(CallbackView::of(&c));
+            }
+        }
+        Ok(())
     }
 
     fn live(&self, id: &str) -> Option<watch::Receiver<JobView>> {
@@ -133,7 +156,11 @@ impl App {
         page_token: Option<&str>,
     ) -> Result<(Vec<JobView>, Option<String>), AppError> {
         let (records, next) = self.store().list_jobs(limit, page_token).await?;
-        Ok((records.iter().map(JobView::from_record).collect(), next))
+        let mut views: Vec<JobView> = records.iter().map(JobView::from_record).collect();
+        for v in &mut views {
+            self.with_callback(v).await?;
+        }
+        Ok((views, next))
     }
 
     /// A job's events.
@@ -155,6 +182,9 @@ impl App {
     ) -> Result<(JobView, bool), AppError> {
         let (request, times) = spec.resolve(self.engine().limits().max_frames)?;
         request.check(self.engine().limits(), times.len())?;
+        if let Some(url) = &spec.callback {
+            self.check_callback(url)?;
+        }
         // Checks the scene, version and time now, so that a bad one is this request's
         // error and not the job's.
         let (geometry, _) = self.geometry(scene, spec.version, spec.time).await?;
@@ -172,9 +202,22 @@ impl App {
         };
         let (record, created) = self.store().create_job(new).await?;
         if created {
+            if let Some(url) = &spec.callback {
+                // Owed from now on, so that a crash before the job ends still delivers.
+                let owed = self
+                    .store()
+                    .put_callback(&record.id, url, CallbackState::Pending, 0, None)
+                    .await;
+                if let Err(e) = owed {
+                    let _ = self.store().cancel_job(&record.id).await;
+                    return Err(e.into());
+                }
+            }
             self.start(record.clone(), Work::Render(Box::new(spec)), ticket);
         }
-        Ok((JobView::from_record(&record), created))
+        let mut view = JobView::from_record(&record);
+        self.with_callback(&mut view).await?;
+        Ok((view, created))
     }
 
     /// Submits an asynchronous trace (`Prefer: respond-async`): the rays are stored and
@@ -228,6 +271,9 @@ impl App {
         if let Some(l) = live {
             l.cancel.cancel();
             let _ = l.events.send(view.clone());
+        }
+        if view.callback.is_some() {
+            self.notify(id);
         }
         Ok(Some(view))
     }
@@ -295,6 +341,13 @@ impl App {
                         .await;
                 }
             }
+        }
+        let resumed = self.resume_callbacks().await?;
+        if resumed > 0 {
+            tracing::info!(
+                callbacks = resumed,
+                "resuming callback deliveries of the last run"
+            );
         }
         Ok(n)
     }
@@ -438,7 +491,12 @@ impl App {
                 Ok(r) => {
                     tracing::info!(state = r.state.as_str(), "job ended");
                     observe(r.state);
-                    let _ = events.send(JobView::from_record(&r));
+                    let view = JobView::from_record(&r);
+                    let has_callback = view.callback.is_some();
+                    let _ = events.send(view);
+                    if has_callback {
+                        self.notify(&id);
+                    }
                 }
                 Err(e) => tracing::error!("cannot record the job's end: {e}"),
             }

@@ -7,14 +7,16 @@
 //! result survive a crash, and a job that was queued or running when the process died is
 //! queued again at the next start ([`App::recover`]).
 
+mod callbacks;
 mod jobs;
 mod scenes;
 mod spec;
 mod thumbnails;
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 
+pub use callbacks::{CallbackFailure, CallbackSender, CallbackView, SendFuture};
 pub use jobs::{JobEvents, JobView};
 pub use scenes::{scene_info, SceneView, TraceIntake, UploadKind};
 pub use spec::{FramesSpec, RenderSpec, TraceParams};
@@ -82,6 +84,8 @@ pub struct AppOptions {
     pub geometry_bytes: usize,
     /// Who hears about finished work.
     pub observer: Option<Arc<dyn Observer>>,
+    /// Who POSTs render jobs' callbacks; `None`: a job with a `callback` is refused (422).
+    pub callbacks: Option<Arc<dyn CallbackSender>>,
 }
 
 impl std::fmt::Debug for AppOptions {
@@ -89,6 +93,7 @@ impl std::fmt::Debug for AppOptions {
         f.debug_struct("AppOptions")
             .field("geometry_bytes", &self.geometry_bytes)
             .field("observer", &self.observer.is_some())
+            .field("callbacks", &self.callbacks.is_some())
             .finish()
     }
 }
@@ -98,6 +103,7 @@ impl Default for AppOptions {
         AppOptions {
             geometry_bytes: 1 << 30,
             observer: None,
+            callbacks: None,
         }
     }
 }
@@ -116,6 +122,9 @@ struct Inner {
     live: Mutex<HashMap<String, jobs::Live>>,
     observer: Option<Arc<dyn Observer>>,
     thumbnails: thumbnails::Thumbnails,
+    callbacks: Option<Arc<dyn CallbackSender>>,
+    /// Jobs whose callback a task is delivering now.
+    delivering: Mutex<HashSet<String>>,
 }
 
 impl App {
@@ -130,6 +139,8 @@ impl App {
                 scenes: scenes::SceneCache::new(options.geometry_bytes),
                 live: Mutex::new(HashMap::new()),
                 observer: options.observer,
+                callbacks: options.callbacks,
+                delivering: Mutex::new(HashSet::new()),
                 thumbnails: thumbnails::Thumbnails::new(weak.clone()),
             }),
         }

@@ -145,20 +145,14 @@ pub struct RenderSpec {
     /// 0–100, higher first.
     #[serde(default = "default_priority")]
     pub priority: u8,
-    /// A URL to POST the finished job to.
+    /// A URL to POST the finished job to (checked against the server's allow-list at
+    /// submission, by the app, not here: resolving it again after a restart must not fail).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub callback: Option<String>,
 }
 
 fn bad(field: &'static str, detail: impl Into<String>) -> AppError {
     AppError::BadParameter {
-        field,
-        detail: detail.into(),
-    }
-}
-
-fn unsupported(field: &'static str, detail: impl Into<String>) -> AppError {
-    AppError::Unprocessable {
         field,
         detail: detail.into(),
     }
@@ -231,12 +225,6 @@ impl RenderSpec {
                     "AOVs are EXR channels; the {} output has none (ask for exr)",
                     self.format
                 ),
-            ));
-        }
-        if self.callback.is_some() {
-            return Err(unsupported(
-                "callback",
-                "callbacks are not enabled on this server (no --callback-allow)",
             ));
         }
         let times = match (&self.frames, self.time) {

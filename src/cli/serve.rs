@@ -26,6 +26,14 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     let addr = args.addr;
     let state = AppState::new(args)?;
     let config = state.config.clone();
+    // The callback options before the store: a bad one stops the start with its message.
+    let callbacks = service::callback::CallbackClient::from_options(
+        &config.callback_allow,
+        config.callback_secret_file.as_deref(),
+        config.callback_attempts,
+        config.callback_timeout(),
+    )
+    .map_err(|e| CliError::Service(e.into()))?;
     // The store first: a second server on the same directory stops here.
     let store = crate::store::Store::open(
         &config.data_dir,
@@ -54,6 +62,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         Arc::clone(&engine),
         crate::app::AppOptions {
             observer: Some(Arc::new(state.metrics.clone())),
+            callbacks: callbacks.map(|c| Arc::new(c) as Arc<dyn crate::app::CallbackSender>),
             ..Default::default()
         },
     );

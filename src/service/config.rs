@@ -102,6 +102,24 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_MAX_STORE_BYTES")]
     pub max_store_bytes: Option<u64>,
 
+    /// Hosts that render jobs' callbacks may be POSTed to: comma-separated `host` (port 80)
+    /// or `host:port` entries. Default: none (a job with a callback is refused with 422).
+    #[arg(long, env = "RAYD_CALLBACK_ALLOW", value_delimiter = ',')]
+    pub callback_allow: Vec<String>,
+
+    /// File holding the secret that signs every callback (HMAC-SHA256, at least 16 bytes;
+    /// surrounding whitespace is trimmed). Needed with --callback-allow.
+    #[arg(long, env = "RAYD_CALLBACK_SECRET_FILE")]
+    pub callback_secret_file: Option<PathBuf>,
+
+    /// POSTs a callback gets in all, the first included, with back-off between them.
+    #[arg(long, env = "RAYD_CALLBACK_ATTEMPTS", default_value_t = 5)]
+    pub callback_attempts: u32,
+
+    /// Seconds one callback POST may take, connecting included.
+    #[arg(long, env = "RAYD_CALLBACK_TIMEOUT", default_value_t = 10.0, value_parser = parse_seconds)]
+    pub callback_timeout: f64,
+
     /// Log line format: text or json.
     #[arg(long, env = "RAYD_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -142,6 +160,7 @@ impl ServeArgs {
             ("max-spp", u64::from(self.max_spp)),
             ("max-connections", self.max_connections as u64),
             ("max-store-bytes", self.max_store_bytes.unwrap_or(1)),
+            ("callback-attempts", u64::from(self.callback_attempts)),
         ] {
             if v == 0 {
                 return Err(ConfigError::Zero(name));
@@ -153,6 +172,11 @@ impl ServeArgs {
     /// `--grace` as a duration.
     pub fn grace(&self) -> Duration {
         Duration::from_secs_f64(self.grace)
+    }
+
+    /// `--callback-timeout` as a duration.
+    pub fn callback_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.callback_timeout)
     }
 
     /// `--header-timeout` as a duration.

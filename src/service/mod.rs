@@ -18,6 +18,7 @@
 
 pub mod auth;
 pub mod body;
+pub mod callback;
 pub mod config;
 pub mod error;
 pub mod extract;
@@ -61,6 +62,9 @@ pub enum ServiceError {
     /// The metrics registry could not be made.
     #[error(transparent)]
     Metrics(#[from] metrics::MetricsError),
+    /// The callback options are unusable.
+    #[error(transparent)]
+    Callback(#[from] callback::CallbackError),
     /// Binding, serving or signal handling failed.
     #[error("{what}: {source}")]
     Io {

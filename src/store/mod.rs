@@ -12,6 +12,7 @@
 //! The API is async (tokio); file I/O and hashing run on the blocking pool.
 
 mod blob;
+mod callbacks;
 mod error;
 mod jobs;
 mod maint;
@@ -31,6 +32,7 @@ use sqlx::{SqlStr, SqlitePool};
 use tokio::sync::RwLock;
 
 pub use blob::BlobId;
+pub use callbacks::{CallbackRecord, CallbackState};
 pub use error::{Result, StoreError};
 pub use maint::{BackupReport, GcReport};
 pub use records::{
@@ -80,13 +82,22 @@ impl Default for StoreOptions {
 /// (with a checksum) in `_sqlx_migrations`; a database that records a migration this binary
 /// does not know is refused, and an edited migration is refused by its checksum.
 fn migrator() -> Migrator {
-    Migrator::with_migrations(vec![Migration::new(
-        1,
-        "initial schema".into(),
-        MigrationType::Simple,
-        SqlStr::from_static(include_str!("migrations/0001_initial.sql")),
-        false,
-    )])
+    Migrator::with_migrations(vec![
+        Migration::new(
+            1,
+            "initial schema".into(),
+            MigrationType::Simple,
+            SqlStr::from_static(include_str!("migrations/0001_initial.sql")),
+            false,
+        ),
+        Migration::new(
+            2,
+            "callback deliveries".into(),
+            MigrationType::Simple,
+            SqlStr::from_static(include_str!("migrations/0002_callbacks.sql")),
+            false,
+        ),
+    ])
 }
 
 /// A handle on an open store. Cheap to clone: clones share one database pool, one lock and

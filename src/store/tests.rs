@@ -266,8 +266,11 @@ async fn migrations_are_recorded_and_run_once() {
     .fetch_all(&store.inner.reader)
     .await
     .unwrap();
-    assert_eq!(first.len(), 1);
-    assert_eq!(first[0].0, 1);
+    assert_eq!(
+        first.iter().map(|m| m.0).collect::<Vec<_>>(),
+        [1, 2],
+        "every migration once, in order"
+    );
     let s = scene(&store, b"kept across reopen").await;
     store.close().await;
 
@@ -1436,4 +1439,49 @@ async fn concurrent_puts_of_the_same_new_bytes_make_one_file_counted_once() {
     assert_eq!(blob_files(tmp.path()), 5);
     assert_eq!(store.blob_bytes(), Some(5000));
     assert!(temp_files(tmp.path()).is_empty());
+}
+
+#[tokio::test]
+async fn callbacks_are_owed_only_for_ended_jobs_and_go_with_their_job() {
+    use super::CallbackState::{Delivered, Pending};
+    let tmp = tempfile::tempdir().unwrap();
+    let store = open(tmp.path()).await;
+    let s = scene(&store, b"callback scene").await;
+    let (a, _) = store.create_job(render_job(&s)).await.unwrap();
+    let (b, _) = store.create_job(render_job(&s)).await.unwrap();
+    let url = "http://127.0.0.1:9/hook";
+    for j in [&a, &b] {
+        let r = store
+            .put_callback(&j.id, url, Pending, 0, None)
+            .await
+            .unwrap();
+        assert_eq!((r.state, r.attempts), (Pending, 0));
+    }
+    // Nothing is owed while the jobs are queued.
+    assert!(store.pending_callbacks().await.unwrap().is_empty());
+    store.cancel_job(&a.id).await.unwrap();
+    let owed = store.pending_callbacks().await.unwrap();
+    assert_eq!(
+        owed.iter().map(|c| c.job_id.as_str()).collect::<Vec<_>>(),
+        [a.id.as_str()]
+    );
+    // A later write replaces the row.
+    store
+        .put_callback(&a.id, url, Delivered, 2, Some("first try: refused"))
+        .await
+        .unwrap();
+    let got = store.get_callback(&a.id).await.unwrap().unwrap();
+    assert_eq!((got.state, got.attempts), (Delivered, 2));
+    assert!(store.pending_callbacks().await.unwrap().is_empty());
+    // Deleting the job deletes its row; a row for a job that is gone cannot be written.
+    store.delete_job(&a.id).await.unwrap();
+    assert!(matches!(
+        store.put_callback(&a.id, url, Pending, 0, None).await,
+        Err(StoreError::NotFound { .. })
+    ));
+    assert!(matches!(
+        store.get_callback(&a.id).await,
+        Ok(None) | Err(StoreError::NotFound { .. })
+    ));
+    assert!(store.get_callback(&b.id).await.unwrap().is_some());
 }

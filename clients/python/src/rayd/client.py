@@ -475,7 +475,7 @@ class Scene:
         """Starts a render job with the options of ``rayd render`` (``width``, ``height``,
         ``spp``, ``integrator``, ``bounces``, ``camera`` or ``eye``/``target``/``up``,
         ``fov``, ``format``, ``accel``, ``time``, ``version``, ``seed``, ``frames``,
-        ``priority``, ...; ``proto/openapi.yaml``, ``RenderRequest``). Options left None
+        ``priority``, ``callback``, ...; ``proto/openapi.yaml``, ``RenderRequest``). Options left None
         take the server's defaults. Returns the :class:`Job`."""
         body = {k: _plain(v) for k, v in options.items() if v is not None}
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
