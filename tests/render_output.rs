@@ -108,6 +108,7 @@ fn openexr_reads_every_channel_as_rendered() {
         seed: 5,
         sky: [0.9, 1.0, 1.3],
         aovs: all_aovs(),
+        roulette: None,
     };
     let img = render_with(&two_quads(), &options, &look());
     let dir = tempfile::tempdir().unwrap();

@@ -43,6 +43,8 @@ pub struct RenderRequest {
     pub sky: [f32; 3],
     /// AOV channels to add (EXR only).
     pub aovs: AovSet,
+    /// Russian roulette of `path` from this scattering on (`None`: off).
+    pub roulette: Option<u32>,
 }
 
 impl Default for RenderRequest {
@@ -61,6 +63,7 @@ impl Default for RenderRequest {
             precision: Precision::Watertight,
             sky: [1.0; 3],
             aovs: AovSet::default(),
+            roulette: None,
         }
     }
 }
@@ -115,9 +118,20 @@ impl RenderRequest {
                 ),
             });
         }
+        if self.roulette == Some(0) {
+            return Err(JobError::Invalid {
+                field: "roulette",
+                detail: "the first scattering that roulette may end is 1 or later".into(),
+            });
+        }
         let checks = [
             ("spp", self.spp as u64, limits.max_spp as u64),
             ("bounces", self.bounces as u64, limits.max_bounces as u64),
+            (
+                "roulette",
+                self.roulette.unwrap_or(0) as u64,
+                limits.max_bounces as u64,
+            ),
             ("frames", frames as u64, limits.max_frames as u64),
         ];
         for (what, value, limit) in checks {
@@ -279,6 +293,7 @@ impl Engine {
                 seed: request.seed,
                 sky: request.sky,
                 aovs: request.aovs,
+                roulette: request.roulette,
             };
             let waves = FrameWaves {
                 control,
