@@ -294,6 +294,7 @@ impl Engine {
                 sky: request.sky,
                 aovs: request.aovs,
                 roulette: request.roulette,
+                light_sampling: true,
             };
             let waves = FrameWaves {
                 control,

@@ -78,11 +78,12 @@ pub enum LightPick {
 
 impl LightSampler {
     /// The lights of a frame: `surfaces`' punctual lights and emissive triangles among
-    /// `triangles`, and the sky when `sky` is not black.
-    pub fn new(triangles: &[Triangle], surfaces: &Surfaces, sky: Vec3) -> LightSampler {
+    /// `triangles`, and the sky when `sky` is not black; only the punctual lights when
+    /// `area` is false (emitters and sky are then left to BRDF sampling).
+    pub fn new(triangles: &[Triangle], surfaces: &Surfaces, sky: Vec3, area: bool) -> LightSampler {
         let mut emitters = Vec::new();
         let mut total = 0.0f64;
-        for (prim, tri) in triangles.iter().enumerate() {
+        for (prim, tri) in triangles.iter().enumerate().filter(|_| area) {
             let e = surfaces.emissive_factor(prim);
             if e == Vec3::ZERO {
                 continue;
@@ -110,7 +111,11 @@ impl LightSampler {
             *last = 1.0;
         }
         let punctual = surfaces.lights.len();
-        let has = [punctual > 0, !emitters.is_empty(), sky.max_element() > 0.0];
+        let has = [
+            punctual > 0,
+            !emitters.is_empty(),
+            area && sky.max_element() > 0.0,
+        ];
         let k = has.iter().filter(|&&h| h).count().max(1) as f32;
         let p = |h: bool| if h { 1.0 / k } else { 0.0 };
         LightSampler {
@@ -231,7 +236,7 @@ mod tests {
             Default::default(),
             Vec::new(),
         );
-        let l = LightSampler::new(&tris, &s, Vec3::ZERO);
+        let l = LightSampler::new(&tris, &s, Vec3::ZERO, true);
         let mut rng = crate::render::rng::Pcg32::new(1, 1);
         let mut count = [0u32; 3];
         let mut mean_b = [0.0f64; 3];
@@ -271,10 +276,10 @@ mod tests {
     #[test]
     fn categories_share_the_picks() {
         let s = Surfaces::default_material(0, Vec::new());
-        let l = LightSampler::new(&[], &s, Vec3::ONE);
+        let l = LightSampler::new(&[], &s, Vec3::ONE, true);
         assert_eq!(l.pick(&[], [0.3, 0.0, 0.0, 0.0]), Some(LightPick::Sky));
         assert!((l.sky_pdf(Vec3::Z, Vec3::Z) - 1.0 / PI).abs() < 1e-6);
-        let dark = LightSampler::new(&[], &s, Vec3::ZERO);
+        let dark = LightSampler::new(&[], &s, Vec3::ZERO, true);
         assert!(dark.is_empty());
         assert_eq!(power_heuristic(1.0, 1.0), 0.5);
         assert_eq!(power_heuristic(0.0, 0.0), 0.0);

@@ -153,6 +153,12 @@ pub struct RenderOptions {
     /// scattering on (k ≥ 1), weighting survivors up; `None` follows every path to
     /// `bounces`.
     pub roulette: Option<u32>,
+    /// Whether `path` samples emissive triangles and the sky by next-event estimation
+    /// (weighted against BRDF sampling by MIS). `false` leaves them to BRDF sampling
+    /// alone: unbiased but noisier, the reference that tests hold MIS to. Punctual lights
+    /// are sampled either way, since nothing else can reach them. Library-only: the CLI and
+    /// the service always sample lights.
+    pub light_sampling: bool,
 }
 
 impl Default for RenderOptions {
@@ -167,6 +173,7 @@ impl Default for RenderOptions {
             sky: [1.0; 3],
             aovs: AovSet::default(),
             roulette: None,
+            light_sampling: true,
         }
     }
 }
@@ -303,7 +310,12 @@ pub fn render<W: Waves + ?Sized>(
         }
     };
     let lights = if options.integrator == Integrator::Path {
-        LightSampler::new(triangles, surfaces, Vec3::from(options.sky))
+        LightSampler::new(
+            triangles,
+            surfaces,
+            Vec3::from(options.sky),
+            options.light_sampling,
+        )
     } else {
         LightSampler::default()
     };

@@ -542,6 +542,101 @@ mod tests {
         }
     }
 
+    /// A triangle in the XY plane facing +Z, with u along +X and v along −Y (glTF's v
+    /// grows down the image), and a normal texture of the one texel `rgb`.
+    fn normal_mapped(rgb: [f32; 3], scale: f32, tangents: Vec<Vec4>) -> (Surfaces, Triangle) {
+        use super::super::texture::{Texels, TextureSet};
+        use crate::scene::{Filter, Wrap};
+        let tri = Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        };
+        let mut shading = Shading::flat(1);
+        shading.materials = vec![0];
+        shading.uv0 = vec![
+            Vec2::new(0.0, 1.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(0.0, 0.0),
+        ];
+        shading.tangents = tangents;
+        let material = Material {
+            normal_texture: Some(TextureRef {
+                texture: 0,
+                tex_coord: 0,
+                transform: None,
+            }),
+            normal_scale: scale,
+            ..Material::default()
+        };
+        let texels = Texels::from_rgba(1, 1, vec![[rgb[0], rgb[1], rgb[2], 1.0]]).unwrap();
+        let textures = TextureSet::from_texels(vec![(texels, [Wrap::Repeat; 2], Filter::Nearest)]);
+        (
+            Surfaces::from_parts(shading, vec![material], textures, Vec::new()),
+            tri,
+        )
+    }
+
+    fn shading_normal(s: &Surfaces, tri: &Triangle, dir: Vec3) -> Vec3 {
+        let hit = Hit {
+            t: 1.0,
+            u: 0.25,
+            v: 0.25,
+            prim: 0,
+        };
+        s.at(tri, &hit, dir).ns
+    }
+
+    #[test]
+    fn normal_textures_tilt_the_shading_normal_in_the_tangent_frame() {
+        let down = Vec3::NEG_Z;
+        // Tangent-space (0.6, 0, 0.8): towards +u, which is +X.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.6, 0.0, 0.8)).length() < 1e-5, "{n}");
+        // Tangent-space (0, 0.6, 0.8): towards the image's up, which is −v, here +Y.
+        let (s, tri) = normal_mapped([0.5, 0.8, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
+        // Scale 0 leaves the geometric normal.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 0.0, Vec::new());
+        assert!((shading_normal(&s, &tri, down) - Vec3::Z).length() < 1e-6);
+        // The mesh's TANGENT wins over the UV gradient: here +Y, so +X of the texture
+        // tilts towards +Y.
+        let t = vec![Vec4::new(0.0, 1.0, 0.0, 1.0); 3];
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, t);
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
+        // Seen from behind, the whole frame turns to the ray's side.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, Vec3::Z);
+        assert!(n.z < 0.0 && (n.length() - 1.0).abs() < 1e-5, "{n}");
+    }
+
+    #[test]
+    fn presence_follows_alpha_mode() {
+        let hit = Hit {
+            t: 1.0,
+            u: 0.2,
+            v: 0.2,
+            prim: 0,
+        };
+        let of = |alpha: f32, mode: AlphaMode| {
+            let m = Material {
+                base_color_factor: [1.0, 1.0, 1.0, alpha],
+                alpha_mode: mode,
+                ..Material::default()
+            };
+            let s = Surfaces::uniform(1, m, Vec::new());
+            (s.has_alpha(), s.presence(&hit))
+        };
+        assert_eq!(of(0.1, AlphaMode::Opaque), (false, Presence::Opaque));
+        let mask = AlphaMode::Mask { cutoff: 0.5 };
+        assert_eq!(of(0.4, mask), (true, Presence::Cut));
+        assert_eq!(of(0.5, mask), (true, Presence::Opaque));
+        assert_eq!(of(0.4, AlphaMode::Blend), (true, Presence::Blend(0.4)));
+        assert_eq!(of(0.0, AlphaMode::Blend).1, Presence::Cut);
+        assert_eq!(of(1.0, AlphaMode::Blend).1, Presence::Opaque);
+    }
+
     #[test]
     fn point_light_falls_off_with_the_square_and_spots_have_cones() {
         let l = PunctualLight::Point {
