@@ -108,6 +108,8 @@ fn openexr_reads_every_channel_as_rendered() {
         seed: 5,
         sky: [0.9, 1.0, 1.3],
         aovs: all_aovs(),
+        roulette: None,
+        light_sampling: true,
     };
     let img = render_with(&two_quads(), &options, &look());
     let dir = tempfile::tempdir().unwrap();
@@ -421,4 +423,266 @@ fn point_light_over_a_lambertian_plane_follows_the_inverse_square_law() {
         let got = img.pixels[0][0];
         assert!((got - want).abs() < 1e-3 * want, "x = {x}: {got} vs {want}");
     }
+}
+
+/// The mean of a square image's pixels and the standard error of that mean, from the
+/// spread of the pixels (each the mean of its own, independent samples).
+fn mean_and_error(img: &Image) -> (f64, f64) {
+    let v: Vec<f64> = img.pixels.iter().map(|p| p[0] as f64).collect();
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
+}
+
+/// Irradiance at a point under the centre of a Lambertian emitter of radiance `l`, a
+/// square of half-side `a` parallel to the receiver at height `h`: four rectangles with
+/// a corner over the point, each of the view factor
+/// F = 1/(2π) [X/√(1+X²) atan(Y/√(1+X²)) + Y/√(1+Y²) atan(X/√(1+Y²))], X = Y = a/h.
+fn square_irradiance(l: f64, a: f64, h: f64) -> f64 {
+    let x = a / h;
+    let s = (1.0 + x * x).sqrt();
+    let f = (2.0 * x / s * (x / s).atan()) / (2.0 * std::f64::consts::PI);
+    std::f64::consts::PI * l * 4.0 * f
+}
+
+/// A floor (triangles 0, 1) of material 0 and a square emitter (triangles 2, 3) of
+/// material 1 at height `h`, facing down.
+fn floor_and_square(a: f32, h: f32) -> Vec<Triangle> {
+    vec![
+        tri([-50.0, 0.0, -50.0], [50.0, 0.0, 50.0], [50.0, 0.0, -50.0]),
+        tri([-50.0, 0.0, -50.0], [-50.0, 0.0, 50.0], [50.0, 0.0, 50.0]),
+        tri([-a, h, -a], [a, h, -a], [a, h, a]),
+        tri([-a, h, -a], [a, h, a], [-a, h, a]),
+    ]
+}
+
+fn surfaces_of(
+    tris: &[Triangle],
+    per_triangle: Vec<u32>,
+    materials: Vec<rayd::scene::Material>,
+    lights: Vec<PunctualLight>,
+) -> Surfaces {
+    let mut shading = rayd::scene::Shading::flat(tris.len());
+    shading.materials = per_triangle;
+    Surfaces::from_parts(shading, materials, Default::default(), lights)
+}
+
+/// An emissive square over a Lambertian floor: the floor under its centre shows
+/// ρ/π · E with E the analytic irradiance, and next-event estimation with MIS and BRDF
+/// sampling alone agree with it (and with each other) within their noise, MIS with less.
+#[test]
+fn an_emissive_square_lights_a_floor_with_the_analytic_irradiance() {
+    let (rho, le, a, h) = (0.5f32, 4.0f32, 0.5f32, 1.0f32);
+    let tris = floor_and_square(a, h);
+    let emitter = rayd::scene::Material {
+        base_color_factor: [0.0, 0.0, 0.0, 1.0],
+        emissive_factor: [1.0; 3],
+        emissive_strength: le,
+        ..lambertian(0.0)
+    };
+    let surfaces = surfaces_of(
+        &tris,
+        vec![0, 0, 1, 1],
+        vec![lambertian(rho), emitter],
+        vec![],
+    );
+    // From the side, under the emitter: a narrow view of the floor's point (0, 0, 0).
+    let camera = CameraChoice::LookAt {
+        eye: [3.0, 0.5, 0.0],
+        target: [0.0; 3],
+        up: [0.0, 1.0, 0.0],
+        fov: 0.01,
+    };
+    let want = rho as f64 / std::f64::consts::PI * square_irradiance(le as f64, a as f64, h as f64);
+    let mut errors = Vec::new();
+    for light_sampling in [true, false] {
+        let options = RenderOptions {
+            width: 16,
+            height: 16,
+            spp: 32,
+            integrator: Integrator::Path,
+            bounces: 1,
+            seed: 21,
+            sky: [0.0; 3],
+            light_sampling,
+            ..RenderOptions::default()
+        };
+        let img = render_surfaces(&tris, &options, &camera, &surfaces);
+        let (mean, err) = mean_and_error(&img);
+        assert!(
+            (mean - want).abs() < 4.0 * err + 1e-3 * want,
+            "light sampling {light_sampling}: {mean} ± {err}, want {want}"
+        );
+        errors.push((mean, err));
+    }
+    let ((m1, e1), (m2, e2)) = (errors[0], errors[1]);
+    assert!(
+        (m1 - m2).abs() < 4.0 * (e1 * e1 + e2 * e2).sqrt(),
+        "{errors:?}"
+    );
+    assert!(
+        e1 < e2,
+        "MIS is no less noisy than BRDF sampling: {errors:?}"
+    );
+}
+
+/// The furnace under Russian roulette: every path may end after its first scattering, and
+/// the survivors' weight keeps the mean at ρL.
+#[test]
+fn roulette_keeps_the_furnace_mean() {
+    let (rho, sky) = (0.6f32, [1.0f32; 3]);
+    let tris = cube(1.0);
+    let surfaces = Surfaces::uniform(tris.len(), lambertian(rho), Vec::new());
+    let camera = CameraChoice::LookAt {
+        eye: [0.0, 0.0, 3.0],
+        target: [0.0; 3],
+        up: [0.0, 1.0, 0.0],
+        fov: 20.0,
+    };
+    let options = RenderOptions {
+        width: 16,
+        height: 16,
+        spp: 16,
+        integrator: Integrator::Path,
+        bounces: 4,
+        seed: 8,
+        sky,
+        roulette: Some(1),
+        ..RenderOptions::default()
+    };
+    let img = render_surfaces(&tris, &options, &camera, &surfaces);
+    assert!(img.alpha.iter().all(|&a| a == 1.0));
+    let (mean, err) = mean_and_error(&img);
+    assert!(err > 0.0, "roulette made no noise: it never ended a path");
+    assert!(
+        (mean - rho as f64).abs() < 4.0 * err + 1e-4,
+        "{mean} ± {err}"
+    );
+}
+
+/// Sample positions: every sample uniform in its pixel over pixels, and a pixel's samples
+/// one per column stratum.
+#[test]
+fn pixel_samples_are_stratified_and_uniform() {
+    let spp = 16;
+    for p in [0usize, 7, 1234] {
+        let mut columns = [0u32; 16];
+        for s in 0..spp {
+            let (x, y) = rayd::render::pixel_sample(3, p, s, spp);
+            assert!((0.0..1.0).contains(&x) && (0.0..1.0).contains(&y));
+            columns[(x * spp as f64) as usize] += 1;
+        }
+        assert!(columns.iter().all(|&c| c == 1), "{columns:?}");
+    }
+    let n = 4000;
+    let (mut mx, mut my) = (0.0, 0.0);
+    for p in 0..n {
+        let (x, y) = rayd::render::pixel_sample(5, p, 0, 1);
+        mx += x / n as f64;
+        my += y / n as f64;
+    }
+    assert!(
+        (mx - 0.5).abs() < 0.02 && (my - 0.5).abs() < 0.02,
+        "{mx} {my}"
+    );
+}
+
+/// `alphaMode`: a `MASK` surface below its cutoff is not there for camera rays, shadow
+/// rays or coverage, one above it is; a `BLEND` surface covers its alpha's share of the
+/// samples and lets 1 − alpha of a light through.
+#[test]
+fn alpha_modes_cut_blend_and_shadow() {
+    use rayd::scene::AlphaMode;
+    let with_alpha = |alpha: f32, mode: AlphaMode| rayd::scene::Material {
+        base_color_factor: [0.5, 0.5, 0.5, alpha],
+        alpha_mode: mode,
+        ..lambertian(0.5)
+    };
+    // Coverage of a lone quad seen head-on, filling the view.
+    let quad = vec![
+        tri([-9.0, -9.0, 0.0], [9.0, -9.0, 0.0], [9.0, 9.0, 0.0]),
+        tri([-9.0, -9.0, 0.0], [9.0, 9.0, 0.0], [-9.0, 9.0, 0.0]),
+    ];
+    let camera = CameraChoice::LookAt {
+        eye: [0.0, 0.0, 5.0],
+        target: [0.0; 3],
+        up: [0.0, 1.0, 0.0],
+        fov: 30.0,
+    };
+    let coverage = |m: rayd::scene::Material, integrator| {
+        let s = surfaces_of(&quad, vec![0, 0], vec![m], vec![]);
+        let options = RenderOptions {
+            width: 16,
+            height: 16,
+            spp: 8,
+            integrator,
+            bounces: 1,
+            ..RenderOptions::default()
+        };
+        let img = render_surfaces(&quad, &options, &camera, &s);
+        img.alpha.iter().map(|&a| a as f64).sum::<f64>() / img.alpha.len() as f64
+    };
+    for integrator in [Integrator::Primary, Integrator::Path] {
+        let mask = |cutoff| AlphaMode::Mask { cutoff };
+        assert_eq!(coverage(with_alpha(0.3, mask(0.5)), integrator), 0.0);
+        assert_eq!(coverage(with_alpha(0.3, mask(0.2)), integrator), 1.0);
+        assert_eq!(
+            coverage(with_alpha(0.3, AlphaMode::Opaque), integrator),
+            1.0
+        );
+        // 2048 samples of Bernoulli(0.25): standard deviation 0.01.
+        let c = coverage(with_alpha(0.25, AlphaMode::Blend), integrator);
+        assert!((c - 0.25).abs() < 0.04, "{integrator:?}: {c}");
+    }
+
+    // A point light over a floor, with a large quad between them at half height.
+    let (rho, height, intensity) = (0.5f32, 2.0f32, 30.0f32);
+    let mut tris = vec![
+        tri([-50.0, 0.0, -50.0], [50.0, 0.0, 50.0], [50.0, 0.0, -50.0]),
+        tri([-50.0, 0.0, -50.0], [-50.0, 0.0, 50.0], [50.0, 0.0, 50.0]),
+    ];
+    tris.push(tri([-5.0, 1.0, -5.0], [5.0, 1.0, -5.0], [5.0, 1.0, 5.0]));
+    tris.push(tri([-5.0, 1.0, -5.0], [5.0, 1.0, 5.0], [-5.0, 1.0, 5.0]));
+    let light = PunctualLight::Point {
+        position: glam::Vec3::new(0.0, height, 0.0),
+        intensity: glam::Vec3::splat(intensity),
+        range: f32::INFINITY,
+        cone: None,
+    };
+    // From below the occluder's height, looking at the floor's point (0, 0, 0.3).
+    let camera = CameraChoice::LookAt {
+        eye: [3.0, 0.4, 0.3],
+        target: [0.0, 0.0, 0.3],
+        up: [0.0, 1.0, 0.0],
+        fov: 0.01,
+    };
+    let lit = |occluder: rayd::scene::Material| {
+        let s = surfaces_of(
+            &tris,
+            vec![0, 0, 1, 1],
+            vec![lambertian(rho), occluder],
+            vec![light],
+        );
+        let options = RenderOptions {
+            width: 1,
+            height: 1,
+            integrator: Integrator::Path,
+            bounces: 1,
+            sky: [0.0; 3],
+            ..RenderOptions::default()
+        };
+        render_surfaces(&tris, &options, &camera, &s).pixels[0][0]
+    };
+    let r2 = 0.09 + height * height;
+    let want = rho / std::f32::consts::PI * intensity * (height / r2.sqrt()) / r2;
+    let open = lit(with_alpha(0.3, AlphaMode::Mask { cutoff: 0.5 }));
+    assert!((open - want).abs() < 1e-3 * want, "{open} vs {want}");
+    assert_eq!(lit(with_alpha(0.3, AlphaMode::Opaque)), 0.0);
+    let half = lit(with_alpha(0.25, AlphaMode::Blend));
+    assert!(
+        (half - 0.75 * want).abs() < 1e-3 * want,
+        "{half} vs {}",
+        0.75 * want
+    );
 }

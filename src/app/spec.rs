@@ -136,6 +136,9 @@ pub struct RenderSpec {
     /// AOV channels for EXR output (each at most once).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub aov: Vec<Aov>,
+    /// Russian roulette of `path` from this scattering on (absent: off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub roulette: Option<u32>,
     /// Animation times: one image per time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub frames: Option<FramesSpec>,
@@ -254,6 +257,7 @@ impl RenderSpec {
                 sky,
                 aovs,
                 update: self.update,
+                roulette: self.roulette,
             },
             times,
         ))

@@ -38,6 +38,10 @@ pub(super) struct RenderArgs {
     /// Seed of the sampling.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Russian roulette of `path`: paths may end at random from this scattering on (1 or
+    /// later); off when not given.
+    #[arg(long)]
+    roulette: Option<u32>,
     /// Radiance R,G,B of the constant environment (`path`).
     #[arg(long, value_parser = super::parse_vec3, default_value = "1,1,1", allow_hyphen_values = true)]
     sky: [f64; 3],
@@ -114,6 +118,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         sky: a.sky.map(|x| x as f32),
         aovs: AovSet::of(&a.aov),
         update: a.update,
+        roulette: a.roulette,
     };
     request.check(engine.limits(), times.len())?;
     let path = a.scene.display().to_string();

@@ -45,6 +45,8 @@ pub struct RenderRequest {
     pub aovs: AovSet,
     /// How a frame over moved geometry gets its BVH: refit or rebuild.
     pub update: super::Update,
+    /// Russian roulette of `path` from this scattering on (`None`: off).
+    pub roulette: Option<u32>,
 }
 
 impl Default for RenderRequest {
@@ -64,6 +66,7 @@ impl Default for RenderRequest {
             sky: [1.0; 3],
             aovs: AovSet::default(),
             update: super::Update::Auto,
+            roulette: None,
         }
     }
 }
@@ -118,9 +121,20 @@ impl RenderRequest {
                 ),
             });
         }
+        if self.roulette == Some(0) {
+            return Err(JobError::Invalid {
+                field: "roulette",
+                detail: "the first scattering that roulette may end is 1 or later".into(),
+            });
+        }
         let checks = [
             ("spp", self.spp as u64, limits.max_spp as u64),
             ("bounces", self.bounces as u64, limits.max_bounces as u64),
+            (
+                "roulette",
+                self.roulette.unwrap_or(0) as u64,
+                limits.max_bounces as u64,
+            ),
             ("frames", frames as u64, limits.max_frames as u64),
         ];
         for (what, value, limit) in checks {
@@ -318,6 +332,8 @@ impl Engine {
                 seed: request.seed,
                 sky: request.sky,
                 aovs: request.aovs,
+                roulette: request.roulette,
+                light_sampling: true,
             };
             let waves = FrameWaves {
                 control,

@@ -8,6 +8,7 @@
 pub mod brdf;
 pub mod camera;
 pub mod image;
+pub mod lights;
 pub mod rng;
 pub mod sampling;
 pub mod surface;
@@ -17,10 +18,11 @@ use crate::accel::{Intersector, Query};
 use crate::geometry::{dot, Hit, Ray, Triangle};
 use camera::ViewCamera;
 use glam::Vec3;
+use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
 use rng::Pcg32;
 use sampling::{basis, cosine_hemisphere, normalize};
-use surface::{offset_ray, Surfaces};
+use surface::{offset_ray, Presence, Surfaces};
 
 /// What a pixel shows.
 #[derive(
@@ -135,7 +137,7 @@ pub struct RenderOptions {
     pub width: u32,
     /// Image height in pixels.
     pub height: u32,
-    /// Samples per pixel (jittered within the pixel).
+    /// Samples per pixel (a shifted Hammersley set within the pixel: [`pixel_sample`]).
     pub spp: u32,
     /// What to compute.
     pub integrator: Integrator,
@@ -147,6 +149,16 @@ pub struct RenderOptions {
     pub sky: [f32; 3],
     /// AOVs to keep.
     pub aovs: AovSet,
+    /// Russian roulette for `path`: `Some(k)` lets paths end at random from their k-th
+    /// scattering on (k ≥ 1), weighting survivors up; `None` follows every path to
+    /// `bounces`.
+    pub roulette: Option<u32>,
+    /// Whether `path` samples emissive triangles and the sky by next-event estimation
+    /// (weighted against BRDF sampling by MIS). `false` leaves them to BRDF sampling
+    /// alone: unbiased but noisier, the reference that tests hold MIS to. Punctual lights
+    /// are sampled either way, since nothing else can reach them. Library-only: the CLI and
+    /// the service always sample lights.
+    pub light_sampling: bool,
 }
 
 impl Default for RenderOptions {
@@ -160,6 +172,8 @@ impl Default for RenderOptions {
             seed: 0,
             sky: [1.0; 3],
             aovs: AovSet::default(),
+            roulette: None,
+            light_sampling: true,
         }
     }
 }
@@ -295,6 +309,16 @@ pub fn render<W: Waves + ?Sized>(
             &fallback
         }
     };
+    let lights = if options.integrator == Integrator::Path {
+        LightSampler::new(
+            triangles,
+            surfaces,
+            Vec3::from(options.sky),
+            options.light_sampling,
+        )
+    } else {
+        LightSampler::default()
+    };
     let (w, h) = (options.width, options.height);
     let n = w as usize * h as usize;
     let spp = options.spp.max(1);
@@ -338,6 +362,7 @@ pub fn render<W: Waves + ?Sized>(
                         options,
                         scene_diagonal,
                         surfaces,
+                        lights: &lights,
                     },
                     (start, end, s),
                     &mut out,
@@ -400,6 +425,39 @@ struct Frame<'a> {
     options: &'a RenderOptions,
     scene_diagonal: f32,
     surfaces: &'a Surfaces,
+    lights: &'a LightSampler,
+}
+
+impl Frame<'_> {
+    /// Closest hits of `rays`, counted in `stats`.
+    fn trace(&self, rays: &[Ray], hits: &mut [Hit], stats: &mut RenderStats) {
+        let t0 = std::time::Instant::now();
+        self.accel.trace(rays, Query::Closest, hits);
+        stats.trace_seconds += t0.elapsed().as_secs_f64();
+        stats.rays += rays.len() as u64;
+    }
+}
+
+/// Seed key of the per-pixel shift of the sample pattern, kept apart from the samples'
+/// own streams (which key on the sample number in bits 40 and up).
+const SHIFT_KEY: u64 = 0x5eed_0f5a_a71e_d5e7;
+
+/// Surfaces passed through by one ray before the next one found stops it, at most; past
+/// that the last one found does (a bound on the work, far beyond any real foliage).
+const MAX_LAYERS: u32 = 64;
+
+/// Where sample `s` of `spp` of pixel `p` lies in its pixel, in [0, 1)²: point `s` of the
+/// `spp`-point Hammersley set (`s / spp`, base-2 radical inverse of `s`), shifted toroidally
+/// by a random offset of the pixel (Cranley–Patterson rotation). The shift makes every
+/// sample uniform in the pixel, so the box filter is unbiased, and the set spreads a
+/// pixel's samples evenly (stratified in x, a (0, m, 2)-net when `spp` is a power of 2).
+/// It depends only on the seed, pixel and sample, never on how waves split the work.
+pub fn pixel_sample(seed: u64, p: usize, s: u32, spp: u32) -> (f64, f64) {
+    let mut shift = Pcg32::new(seed ^ SHIFT_KEY, p as u64);
+    let (dx, dy) = (shift.next_f32() as f64, shift.next_f32() as f64);
+    let x = s as f64 / spp.max(1) as f64;
+    let y = s.reverse_bits() as f64 * (1.0 / 4_294_967_296.0);
+    ((x + dx).fract(), (y + dy).fract())
 }
 
 /// One wave: sample `s` of pixels `start..end`, accumulated into `out`.
@@ -411,43 +469,36 @@ fn render_wave(
 ) {
     let Frame {
         triangles,
-        accel,
         camera,
         options,
         scene_diagonal,
         surfaces,
+        ..
     } = frame;
     let w = options.width;
     let h = options.height;
-    let trace = |rays: &[Ray], query: Query, hits: &mut [Hit], stats: &mut RenderStats| {
-        let t0 = std::time::Instant::now();
-        accel.trace(rays, query, hits);
-        stats.trace_seconds += t0.elapsed().as_secs_f64();
-        stats.rays += rays.len() as u64;
-    };
-    let mut rngs: Vec<Pcg32> = (start..end)
-        .map(|p| Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64))
-        .collect();
-    // Box filter: every sample, the first too, lies uniformly inside its pixel.
-    let rays: Vec<Ray> = (start..end)
-        .zip(&mut rngs)
-        .map(|(p, rng)| {
-            let (jx, jy) = (rng.next_f32() as f64, rng.next_f32() as f64);
+    let spp = options.spp.max(1);
+    let mut paths: Vec<PathState> = (start..end)
+        .enumerate()
+        .map(|(i, p)| {
+            let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
+            let (jx, jy) = pixel_sample(options.seed, p, s, spp);
             let (x, y) = ((p % w as usize) as f64, (p / w as usize) as f64);
-            camera.ray(x + jx, y + jy, w, h)
+            let ray = camera.ray(x + jx, y + jy, w, h);
+            PathState::new(i, ray, rng)
         })
         .collect();
-    let mut hits = vec![Hit::MISS; rays.len()];
-    trace(&rays, Query::Closest, &mut hits, stats);
-    for (c, hit) in wave.covered.iter_mut().zip(&hits) {
-        *c += hit.is_hit() as u32;
+    trace_closest(frame, &mut paths, stats);
+    for (c, p) in wave.covered.iter_mut().zip(&paths) {
+        *c += p.hit.is_hit() as u32;
     }
     if let Some(primary) = wave.primary.as_deref_mut() {
-        for ((q, r), hit) in primary.iter_mut().zip(&rays).zip(&hits) {
+        for (q, p) in primary.iter_mut().zip(&paths) {
+            let hit = &p.hit;
             *q = if hit.is_hit() {
-                let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(r.dir));
+                let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(p.ray.dir));
                 Primary {
-                    depth: hit.t,
+                    depth: p.travelled + hit.t,
                     normal: sp.ns.to_array(),
                     albedo: sp.bsdf.base.to_array(),
                     prim: hit.prim,
@@ -460,7 +511,8 @@ fn render_wave(
     let out = &mut *wave.radiance;
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
-            for ((o, r), hit) in out.iter_mut().zip(&rays).zip(&hits) {
+            for (o, p) in out.iter_mut().zip(&paths) {
+                let (r, hit) = (&p.ray, &p.hit);
                 let c = if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
                     if options.integrator == Integrator::Primary {
@@ -479,11 +531,11 @@ fn render_wave(
             let dist = scene_diagonal / 8.0;
             let mut idx = Vec::new();
             let mut ao_rays = Vec::new();
-            for (i, (r, hit)) in rays.iter().zip(&hits).enumerate() {
+            for (i, p) in paths.iter_mut().enumerate() {
+                let (r, hit) = (&p.ray, &p.hit);
                 if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
-                    let rng = &mut rngs[i];
-                    let d = cosine_hemisphere(nrm, rng.next_f32(), rng.next_f32());
+                    let d = cosine_hemisphere(nrm, p.rng.next_f32(), p.rng.next_f32());
                     ao_rays.push(Ray {
                         org: offset_ray(r.at(hit.t), nrm),
                         tmin: 0.0,
@@ -495,60 +547,211 @@ fn render_wave(
                     add(&mut out[i], BACKGROUND, 1.0);
                 }
             }
-            let mut occ = vec![0u8; ao_rays.len()];
-            let t0 = std::time::Instant::now();
-            accel.occluded(&ao_rays, &mut occ);
-            stats.trace_seconds += t0.elapsed().as_secs_f64();
-            stats.rays += ao_rays.len() as u64;
-            for (&i, &o) in idx.iter().zip(&occ) {
-                let k = if o != 0 { 0.0 } else { 1.0 };
-                add(&mut out[i], [k, k, k], 1.0);
+            let mut open = vec![Vec3::ONE; ao_rays.len()];
+            trace_shadows(frame, &mut ao_rays, &mut open, stats);
+            for (&i, k) in idx.iter().zip(&open) {
+                add(&mut out[i], k.to_array(), 1.0);
             }
         }
-        Integrator::Path => {
-            let paths = rays
-                .into_iter()
-                .zip(hits)
-                .zip(rngs)
-                .enumerate()
-                .map(|(i, ((ray, hit), rng))| PathState {
-                    pixel: i,
-                    ray,
-                    hit,
-                    throughput: Vec3::ONE,
-                    rng,
-                })
-                .collect();
-            trace_paths(frame, paths, out, stats);
-        }
+        Integrator::Path => trace_paths(frame, paths, out, stats),
     }
 }
 
 /// A live path: its pixel in the wave, the ray it last followed and what that hit, what
-/// it carries, and its pixel's random stream.
+/// it carries, its pixel's random stream, and what multiple importance sampling needs of
+/// the vertex it last scattered at.
 struct PathState {
     pixel: usize,
     ray: Ray,
     hit: Hit,
     throughput: Vec3,
     rng: Pcg32,
+    /// Distance from the segment's start to `ray`'s origin: surfaces passed through since
+    /// the last scattering (or the camera).
+    travelled: f32,
+    /// The last scattering vertex.
+    prev_pos: Vec3,
+    /// Its shading normal.
+    prev_ns: Vec3,
+    /// The BRDF-sampling density of the segment's direction there; 0 for camera rays,
+    /// whose emitter hits take no MIS weight.
+    prev_pdf: f32,
+    /// Whether `hit` still awaits its presence test (alpha).
+    pending: bool,
+}
+
+impl PathState {
+    fn new(pixel: usize, ray: Ray, rng: Pcg32) -> PathState {
+        PathState {
+            pixel,
+            ray,
+            hit: Hit::MISS,
+            throughput: Vec3::ONE,
+            rng,
+            travelled: 0.0,
+            prev_pos: Vec3::from(ray.org),
+            prev_ns: Vec3::ZERO,
+            prev_pdf: 0.0,
+            pending: false,
+        }
+    }
+}
+
+/// The continuation of `ray` past the surface of `hit`: from just behind it (offset along
+/// the geometric normal, as every secondary ray), with what is left of its length.
+fn beyond(triangles: &[Triangle], ray: &Ray, hit: &Hit) -> Ray {
+    let n = facing_normal(&triangles[hit.prim as usize], ray.dir);
+    Ray {
+        org: offset_ray(ray.at(hit.t), [-n[0], -n[1], -n[2]]),
+        tmin: 0.0,
+        dir: ray.dir,
+        tmax: (ray.tmax - hit.t).max(0.0),
+    }
+}
+
+/// Traces every path's ray to the first surface that is there: closest hits as one
+/// batch, then, where the scene has `MASK` or `BLEND` materials, the rays whose hit is cut
+/// away (or passed by the stochastic `BLEND` test, with probability 1 − alpha from the
+/// path's own stream) continue behind it in another batch, until none is left. The cores
+/// know nothing of materials; only the waves do.
+fn trace_closest(frame: Frame<'_>, paths: &mut [PathState], stats: &mut RenderStats) {
+    let rays: Vec<Ray> = paths.iter().map(|p| p.ray).collect();
+    let mut hits = vec![Hit::MISS; rays.len()];
+    frame.trace(&rays, &mut hits, stats);
+    for (p, h) in paths.iter_mut().zip(hits) {
+        p.hit = h;
+        p.pending = h.is_hit();
+    }
+    if !frame.surfaces.has_alpha() {
+        return;
+    }
+    let mut rays = Vec::new();
+    let mut idx = Vec::new();
+    for _ in 0..MAX_LAYERS {
+        paths.par_iter_mut().filter(|p| p.pending).for_each(|p| {
+            let passes = match frame.surfaces.presence(&p.hit) {
+                Presence::Opaque => false,
+                Presence::Cut => true,
+                Presence::Blend(alpha) => p.rng.next_f32() >= alpha,
+            };
+            if passes {
+                p.travelled += p.hit.t;
+                p.ray = beyond(frame.triangles, &p.ray, &p.hit);
+            } else {
+                p.pending = false;
+            }
+        });
+        rays.clear();
+        idx.clear();
+        for (i, p) in paths.iter().enumerate().filter(|(_, p)| p.pending) {
+            rays.push(p.ray);
+            idx.push(i);
+        }
+        if rays.is_empty() {
+            return;
+        }
+        let mut hits = vec![Hit::MISS; rays.len()];
+        frame.trace(&rays, &mut hits, stats);
+        for (&i, h) in idx.iter().zip(hits) {
+            paths[i].hit = h;
+            paths[i].pending = h.is_hit();
+        }
+    }
+    for p in paths.iter_mut() {
+        p.pending = false;
+    }
+}
+
+/// Traces shadow rays and scales each `gain` by what reaches its end: 0 where an opaque
+/// surface blocks it. Without `MASK` or `BLEND` materials that is one `occluded` batch.
+/// With them, closest hits in batches, as [`trace_closest`] does, but deterministic: a cut
+/// surface lets the ray on, a `BLEND` one multiplies the gain by 1 − alpha (the expected
+/// value of the stochastic test, without its noise), and an opaque one stops it.
+fn trace_shadows(frame: Frame<'_>, rays: &mut [Ray], gains: &mut [Vec3], stats: &mut RenderStats) {
+    if rays.is_empty() {
+        return;
+    }
+    if !frame.surfaces.has_alpha() {
+        let mut occluded = vec![0u8; rays.len()];
+        let t0 = std::time::Instant::now();
+        frame.accel.occluded(rays, &mut occluded);
+        stats.trace_seconds += t0.elapsed().as_secs_f64();
+        stats.rays += rays.len() as u64;
+        for (g, &o) in gains.iter_mut().zip(&occluded) {
+            if o != 0 {
+                *g = Vec3::ZERO;
+            }
+        }
+        return;
+    }
+    let mut active: Vec<usize> = (0..rays.len()).collect();
+    let mut batch = Vec::with_capacity(rays.len());
+    for _ in 0..MAX_LAYERS {
+        batch.clear();
+        batch.extend(active.iter().map(|&i| rays[i]));
+        let mut hits = vec![Hit::MISS; batch.len()];
+        frame.trace(&batch, &mut hits, stats);
+        let passed: Vec<Option<f32>> = hits
+            .par_iter()
+            .map(|h| {
+                if !h.is_hit() {
+                    return None;
+                }
+                match frame.surfaces.presence(h) {
+                    Presence::Opaque => Some(0.0),
+                    Presence::Cut => Some(1.0),
+                    Presence::Blend(alpha) => Some(1.0 - alpha),
+                }
+            })
+            .collect();
+        let mut next = Vec::new();
+        for ((&i, h), pass) in active.iter().zip(&hits).zip(passed) {
+            match pass {
+                None => {}
+                Some(k) if k <= 0.0 => gains[i] = Vec3::ZERO,
+                Some(k) => {
+                    gains[i] *= k;
+                    rays[i] = beyond(frame.triangles, &rays[i], h);
+                    next.push(i);
+                }
+            }
+        }
+        if next.is_empty() {
+            return;
+        }
+        active = next;
+    }
+    for i in active {
+        gains[i] = Vec3::ZERO;
+    }
+}
+
+/// The continuing ray of a scattering, with what the path then carries and what MIS
+/// needs of the vertex.
+struct Next {
+    ray: Ray,
+    throughput: Vec3,
+    pos: Vec3,
+    ns: Vec3,
+    pdf: f32,
 }
 
 /// What shading one path vertex gives: radiance to add now, a shadow ray towards a light
-/// with what it adds when unoccluded, and the continuing ray with its throughput.
+/// with what it adds when unoccluded, and the continuing ray.
 #[derive(Default)]
 struct Step {
     emitted: Vec3,
     shadow: Option<(Ray, Vec3)>,
-    next: Option<(Ray, Vec3)>,
+    next: Option<Next>,
 }
 
 /// The `path` integrator over one wave, in batches: every live path is shaded in parallel
 /// (each owns its random stream, so the thread count changes nothing), then all shadow rays
-/// are traced as one batch and all continuing rays as another. Light reaches a path as
-/// emission it hits (surfaces after any bounce, the sky on a miss) and, at each scattering,
-/// by next-event estimation towards one punctual light picked uniformly (a delta light can
-/// only be reached that way, so no weighting between the two is needed).
+/// are traced as one batch and all continuing rays as another. Light reaches a path in
+/// two ways, weighted against each other by multiple importance sampling: as emission its
+/// BRDF-sampled rays hit (emissive surfaces, the sky on a miss), and, at each scattering,
+/// by next-event estimation towards one light that [`LightSampler`] picks (a punctual
+/// light, a point on an emissive triangle or a sky direction).
 fn trace_paths(
     frame: Frame<'_>,
     mut live: Vec<PathState>,
@@ -557,109 +760,158 @@ fn trace_paths(
 ) {
     let options = frame.options;
     let sky = Vec3::from(options.sky);
-    let lights = &frame.surfaces.lights;
+    let mut shadow_rays = Vec::new();
+    let mut shadow_gain = Vec::new();
+    let mut shadow_pixel = Vec::new();
     for bounce in 0..=options.bounces {
         // A vertex reached after `bounce` scatterings may scatter once more.
         let scatter = bounce < options.bounces;
         let steps: Vec<Step> = live
             .par_iter_mut()
-            .map(|p| shade_vertex(frame, p, scatter, sky, lights))
+            .map(|p| shade_vertex(frame, p, bounce, scatter, sky))
             .collect();
-        let mut shadow_rays = Vec::new();
-        let mut shadow_gain = Vec::new();
+        shadow_rays.clear();
+        shadow_gain.clear();
+        shadow_pixel.clear();
         let mut next = Vec::with_capacity(live.len());
         for (p, step) in live.into_iter().zip(steps) {
             add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
             if let Some((ray, gain)) = step.shadow {
                 shadow_rays.push(ray);
-                shadow_gain.push((p.pixel, gain));
+                shadow_gain.push(gain);
+                shadow_pixel.push(p.pixel);
             }
-            if let Some((ray, throughput)) = step.next {
+            if let Some(n) = step.next {
                 next.push(PathState {
-                    ray,
-                    throughput,
+                    ray: n.ray,
+                    throughput: n.throughput,
                     hit: Hit::MISS,
+                    travelled: 0.0,
+                    prev_pos: n.pos,
+                    prev_ns: n.ns,
+                    prev_pdf: n.pdf,
                     ..p
                 });
             }
         }
-        if !shadow_rays.is_empty() {
-            let mut occluded = vec![0u8; shadow_rays.len()];
-            let t0 = std::time::Instant::now();
-            frame.accel.occluded(&shadow_rays, &mut occluded);
-            stats.trace_seconds += t0.elapsed().as_secs_f64();
-            stats.rays += shadow_rays.len() as u64;
-            for (&(pixel, gain), &o) in shadow_gain.iter().zip(&occluded) {
-                if o == 0 {
-                    add(&mut out[pixel], gain.to_array(), 1.0);
-                }
+        trace_shadows(frame, &mut shadow_rays, &mut shadow_gain, stats);
+        for (&pixel, gain) in shadow_pixel.iter().zip(&shadow_gain) {
+            if gain.max_element() > 0.0 {
+                add(&mut out[pixel], gain.to_array(), 1.0);
             }
         }
         if next.is_empty() {
             break;
         }
-        let rays: Vec<Ray> = next.iter().map(|p| p.ray).collect();
-        let mut hits = vec![Hit::MISS; rays.len()];
-        let t0 = std::time::Instant::now();
-        frame.accel.trace(&rays, Query::Closest, &mut hits);
-        stats.trace_seconds += t0.elapsed().as_secs_f64();
-        stats.rays += rays.len() as u64;
-        for (p, h) in next.iter_mut().zip(hits) {
-            p.hit = h;
-        }
+        trace_closest(frame, &mut next, stats);
         live = next;
     }
 }
 
-/// Shades the vertex path `p` reached.
+/// Shades the vertex path `p` reached after `bounce` scatterings.
 fn shade_vertex(
     frame: Frame<'_>,
     p: &mut PathState,
+    bounce: u32,
     scatter: bool,
     sky: Vec3,
-    lights: &[surface::PunctualLight],
 ) -> Step {
     let thr = p.throughput;
+    let dir = Vec3::from(p.ray.dir);
+    let lights = frame.lights;
     if !p.hit.is_hit() {
+        // The sky, weighted against the chance that light sampling found the direction.
+        let w = if p.prev_pdf > 0.0 {
+            power_heuristic(p.prev_pdf, lights.sky_pdf(p.prev_ns, dir))
+        } else {
+            1.0
+        };
         return Step {
-            emitted: thr * sky,
+            emitted: thr * sky * w,
             ..Step::default()
         };
     }
-    let dir = Vec3::from(p.ray.dir);
-    let sp = frame
-        .surfaces
-        .at(&frame.triangles[p.hit.prim as usize], &p.hit, dir);
+    let tri = &frame.triangles[p.hit.prim as usize];
+    let sp = frame.surfaces.at(tri, &p.hit, dir);
+    let pos = Vec3::from(p.ray.at(p.hit.t));
+    let mut emitted = thr * sp.emission;
+    if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
+        let dist = (pos - p.prev_pos).length();
+        let light_pdf = lights.triangle_pdf(p.hit.prim, dist, sp.ng.dot(-dir).abs());
+        emitted *= power_heuristic(p.prev_pdf, light_pdf);
+    }
     let mut step = Step {
-        emitted: thr * sp.emission,
+        emitted,
         ..Step::default()
     };
     if !scatter {
         return step;
     }
-    let pos = p.ray.at(p.hit.t);
     let (t, b) = basis(sp.ns.to_array());
     let (t, b, n) = (Vec3::from(t), Vec3::from(b), sp.ns);
     let local = |v: Vec3| Vec3::new(v.dot(t), v.dot(b), v.dot(n));
     let wo = local(-dir);
-    let org = offset_ray(pos, sp.ng.to_array());
+    let org = offset_ray(pos.to_array(), sp.ng.to_array());
     if !lights.is_empty() {
-        let j = p.rng.below(lights.len() as u32) as usize;
-        if let Some(inc) = lights[j].incident(Vec3::from(pos)) {
-            if inc.wi.dot(sp.ng) > 0.0 {
-                let wi = local(inc.wi);
-                let gain = thr
-                    * sp.bsdf.eval(wo, wi)
-                    * wi.z.max(0.0)
-                    * inc.irradiance
-                    * lights.len() as f32;
+        let u = [
+            p.rng.next_f32(),
+            p.rng.next_f32(),
+            p.rng.next_f32(),
+            p.rng.next_f32(),
+        ];
+        // (direction, distance, radiance or irradiance over the pick's density, and the
+        // light density for MIS: infinite for delta lights, which BRDF sampling misses).
+        let sample = match lights.pick(frame.triangles, u) {
+            Some(LightPick::Punctual { index, prob }) => frame.surfaces.lights[index]
+                .incident(pos)
+                .map(|inc| (inc.wi, inc.distance, inc.irradiance / prob, f32::INFINITY)),
+            Some(LightPick::Triangle {
+                prim,
+                b,
+                normal,
+                point,
+                pdf_area,
+            }) => {
+                // Aim at a point just off the emitter on the vertex's side, so the shadow
+                // ray does not hit the emitter itself.
+                let side = if normal.dot(pos - point) < 0.0 {
+                    -normal
+                } else {
+                    normal
+                };
+                let target = Vec3::from(offset_ray(point.to_array(), side.to_array()));
+                let d = target - Vec3::from(org);
+                let dist = d.length();
+                let wi = d / dist;
+                let cos_light = normal.dot(wi).abs();
+                let pdf = pdf_area * dist * dist / cos_light;
+                let le = frame.surfaces.emission_at(prim as usize, b);
+                (dist > 0.0 && pdf > 0.0 && pdf.is_finite() && le != Vec3::ZERO)
+                    .then(|| (wi, dist, le / pdf, pdf))
+            }
+            Some(LightPick::Sky) => {
+                let wi = Vec3::from(cosine_hemisphere(sp.ns.to_array(), u[1], u[2]));
+                let pdf = lights.sky_pdf(sp.ns, wi);
+                (pdf > 0.0).then(|| (wi, f32::INFINITY, sky / pdf, pdf))
+            }
+            None => None,
+        };
+        if let Some((wi_world, distance, li, light_pdf)) = sample {
+            if wi_world.dot(sp.ng) > 0.0 {
+                let wi = local(wi_world);
+                let weight = if light_pdf.is_infinite() {
+                    1.0
+                } else {
+                    power_heuristic(light_pdf, sp.bsdf.pdf(wo, wi))
+                };
+                let gain = thr * sp.bsdf.eval(wo, wi) * wi.z.max(0.0) * li * weight;
                 if gain.max_element() > 0.0 && gain.is_finite() {
                     step.shadow = Some((
                         Ray {
                             org,
                             tmin: 0.0,
-                            dir: inc.wi.to_array(),
-                            tmax: inc.distance,
+                            dir: wi_world.to_array(),
+                            tmax: distance,
                         },
                         gain,
                     ));
@@ -670,17 +922,36 @@ fn shade_vertex(
     let u = [p.rng.next_f32(), p.rng.next_f32(), p.rng.next_f32()];
     if let Some(s) = sp.bsdf.sample(wo, u) {
         let wi = (t * s.wi.x + b * s.wi.y + n * s.wi.z).normalize_or_zero();
+        let mut throughput = thr * s.weight;
+        // Russian roulette from the `roulette`-th scattering on: a path continues with
+        // probability min(0.95, its largest throughput component), and its weight is
+        // divided by that, which keeps the estimate unbiased.
+        let survives = match frame.options.roulette {
+            Some(start) if bounce + 1 >= start => {
+                let q = throughput.max_element().min(0.95);
+                if q > 0.0 && p.rng.next_f32() < q {
+                    throughput /= q;
+                    true
+                } else {
+                    false
+                }
+            }
+            _ => true,
+        };
         // A direction under the geometric surface would leak through it.
-        if wi.dot(sp.ng) > 0.0 {
-            step.next = Some((
-                Ray {
+        if survives && wi.dot(sp.ng) > 0.0 {
+            step.next = Some(Next {
+                ray: Ray {
                     org,
                     tmin: 0.0,
                     dir: wi.to_array(),
                     tmax: f32::INFINITY,
                 },
-                thr * s.weight,
-            ));
+                throughput,
+                pos,
+                ns: sp.ns,
+                pdf: s.pdf,
+            });
         }
     }
     step

@@ -7,13 +7,19 @@
 //! material). Surfaces are two-sided for light transport: a hit on a back face is shaded
 //! with the normals turned towards the ray, whatever `doubleSided` says, since a path
 //! tracer has no rasteriser's culling to emulate.
+//!
+//! Normal textures tilt the shading normal only, in the tangent frame of the mesh's
+//! `TANGENT` attribute or, where a mesh has none, of the triangle's UV gradients; ray
+//! offsets keep using the geometric normal, so a tilted normal never moves a ray through
+//! the surface. [`Surfaces::presence`] says whether a hit surface is there at all
+//! (`alphaMode`): the renderer's waves, not the cores, act on it.
 
-use glam::{DMat4, DVec3, Vec3};
+use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 
 use super::brdf::Bsdf;
 use super::texture::{TextureError, TextureSet};
 use crate::geometry::{Hit, Triangle};
-use crate::scene::{LightKind, Material, Scene, Shading};
+use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading, TextureRef};
 
 /// A light in world space.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -143,14 +149,82 @@ pub struct SurfacePoint {
     pub emission: Vec3,
 }
 
+/// Whether a hit surface stops a ray there (glTF `alphaMode`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Presence {
+    /// Always (`OPAQUE`, a `MASK` at or above its cutoff, a `BLEND` of alpha 1).
+    Opaque,
+    /// Never: a `MASK` below its cutoff, or a `BLEND` of alpha 0.
+    Cut,
+    /// With probability `alpha` (`BLEND`, 0 < alpha < 1): a ray passes with 1 − alpha.
+    Blend(f32),
+}
+
+impl Presence {
+    /// The probability that the surface stops a ray.
+    pub fn coverage(self) -> f32 {
+        match self {
+            Presence::Opaque => 1.0,
+            Presence::Cut => 0.0,
+            Presence::Blend(a) => a,
+        }
+    }
+}
+
 /// Surfaces and lights of one frame.
 #[derive(Clone, Debug, Default)]
 pub struct Surfaces {
     shading: Shading,
     materials: Vec<Material>,
     textures: TextureSet,
+    /// Whether a material is not opaque (`MASK` or `BLEND`): only then do the waves test
+    /// hits for presence.
+    has_alpha: bool,
     /// The frame's lights.
     pub lights: Vec<PunctualLight>,
+}
+
+/// Where a hit lies on its triangle's vertices: barycentric weights (1 − u − v, u, v) of
+/// its corners, when the triangle has shading vertices.
+#[derive(Clone, Copy)]
+struct Interp {
+    corners: Option<[u32; 3]>,
+    b: [f32; 3],
+}
+
+impl Interp {
+    fn vec3(&self, attr: &[Vec3]) -> Option<Vec3> {
+        let c = self.corners?;
+        let mut sum = Vec3::ZERO;
+        for (k, &i) in c.iter().enumerate() {
+            sum += *attr.get(i as usize)? * self.b[k];
+        }
+        Some(sum)
+    }
+
+    fn vec2(&self, attr: &[Vec2]) -> Vec2 {
+        let Some(c) = self.corners else {
+            return Vec2::ZERO;
+        };
+        let mut sum = Vec2::ZERO;
+        for (k, &i) in c.iter().enumerate() {
+            sum += attr.get(i as usize).copied().unwrap_or_default() * self.b[k];
+        }
+        sum
+    }
+
+    fn colour(&self, colors: &[Vec4]) -> Vec4 {
+        match self.corners.filter(|_| !colors.is_empty()) {
+            None => Vec4::ONE,
+            Some(c) => {
+                let mut sum = Vec4::ZERO;
+                for (k, &i) in c.iter().enumerate() {
+                    sum += colors.get(i as usize).copied().unwrap_or(Vec4::ONE) * self.b[k];
+                }
+                sum
+            }
+        }
+    }
 }
 
 static DEFAULT_MATERIAL: std::sync::LazyLock<Material> =
@@ -175,7 +249,9 @@ impl Surfaces {
                 .iter()
                 .map(|l| PunctualLight::place(l, &l.to_world))
                 .collect(),
-        })
+            has_alpha: false,
+        }
+        .with_alpha())
     }
 
     /// Surfaces of `triangles` triangles of glTF's default material, lit by `lights`.
@@ -197,6 +273,25 @@ impl Surfaces {
             lights,
             ..Surfaces::default()
         }
+        .with_alpha()
+    }
+
+    /// Surfaces of a scene's triangles from parts (tests, generated scenes): shading
+    /// attributes, materials and decoded textures.
+    pub fn from_parts(
+        shading: Shading,
+        materials: Vec<Material>,
+        textures: TextureSet,
+        lights: Vec<PunctualLight>,
+    ) -> Surfaces {
+        Surfaces {
+            shading,
+            materials,
+            textures,
+            lights,
+            has_alpha: false,
+        }
+        .with_alpha()
     }
 
     fn material(&self, prim: usize) -> &Material {
@@ -207,60 +302,131 @@ impl Surfaces {
             .unwrap_or(&DEFAULT_MATERIAL)
     }
 
+    fn interp(&self, prim: usize, b: [f32; 3]) -> Interp {
+        Interp {
+            corners: self.shading.corners.get(prim).copied(),
+            b,
+        }
+    }
+
+    fn uvs(&self, at: &Interp) -> [Vec2; 2] {
+        [at.vec2(&self.shading.uv0), at.vec2(&self.shading.uv1)]
+    }
+
+    fn tex(&self, r: &Option<TextureRef>, uv: [Vec2; 2], srgb: bool) -> Vec4 {
+        r.as_ref()
+            .and_then(|r| self.textures.sample(r, uv, srgb))
+            .unwrap_or(Vec4::ONE)
+    }
+
+    /// Whether any material is not opaque; when none is, every hit stops its ray and the
+    /// renderer skips the presence tests.
+    pub fn has_alpha(&self) -> bool {
+        self.has_alpha
+    }
+
+    fn with_alpha(mut self) -> Surfaces {
+        self.has_alpha = self
+            .materials
+            .iter()
+            .any(|m| m.alpha_mode != AlphaMode::Opaque);
+        self
+    }
+
+    /// Whether the surface at `hit` stops a ray: glTF's alpha (base colour factor ×
+    /// `COLOR_0` × base colour texture, alpha channels) against the material's `alphaMode`.
+    pub fn presence(&self, hit: &Hit) -> Presence {
+        let prim = hit.prim as usize;
+        let m = self.material(prim);
+        let cutoff = match m.alpha_mode {
+            AlphaMode::Opaque => return Presence::Opaque,
+            AlphaMode::Mask { cutoff } => Some(cutoff),
+            AlphaMode::Blend => None,
+        };
+        let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
+        let alpha = m.base_color_factor[3]
+            * at.colour(&self.shading.colors).w
+            * self.tex(&m.base_color_texture, self.uvs(&at), true).w;
+        match cutoff {
+            Some(c) if alpha >= c => Presence::Opaque,
+            Some(_) => Presence::Cut,
+            None if alpha >= 1.0 => Presence::Opaque,
+            None if alpha > 0.0 => Presence::Blend(alpha),
+            None => Presence::Cut,
+        }
+    }
+
+    /// The emissive factor × strength of triangle `prim`'s material, before its texture:
+    /// what light sampling weighs triangles by (a triangle where it is 0 never emits).
+    pub fn emissive_factor(&self, prim: usize) -> Vec3 {
+        let m = self.material(prim);
+        Vec3::from(m.emissive_factor) * m.emissive_strength
+    }
+
+    /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
+    /// probability that the surface is there: what a light sample of that point sees.
+    pub fn emission_at(&self, prim: usize, b: [f32; 3]) -> Vec3 {
+        let m = self.material(prim);
+        let factor = Vec3::from(m.emissive_factor) * m.emissive_strength;
+        if factor == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let at = self.interp(prim, b);
+        let e = factor
+            * self
+                .tex(&m.emissive_texture, self.uvs(&at), true)
+                .truncate();
+        if m.alpha_mode == AlphaMode::Opaque {
+            return e;
+        }
+        let hit = Hit {
+            t: 0.0,
+            u: b[1],
+            v: b[2],
+            prim: prim as u32,
+        };
+        e * self.presence(&hit).coverage()
+    }
+
     /// The surface at `hit` of triangle `tri` for a ray of direction `dir`.
     pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3) -> SurfacePoint {
         let prim = hit.prim as usize;
         let ng = Vec3::from(tri.normal()).normalize_or_zero();
         let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
-        let b = [1.0 - hit.u - hit.v, hit.u, hit.v];
-        let corners = self.shading.corners.get(prim).copied();
-        let interp = |attr: &[Vec3]| -> Option<Vec3> {
-            let c = corners?;
-            let mut sum = Vec3::ZERO;
-            for (k, &i) in c.iter().enumerate() {
-                sum += *attr.get(i as usize)? * b[k];
-            }
-            Some(sum)
-        };
-        let ns = interp(&self.shading.normals)
+        let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
+        let m = self.material(prim);
+        let uv = self.uvs(&at);
+        // The interpolated normal as stored (its own side), or the face normal.
+        let smooth = at
+            .vec3(&self.shading.normals)
             .and_then(Vec3::try_normalize)
-            .map(|n| if n.dot(ng) < 0.0 { -n } else { n })
             .unwrap_or(ng);
-        let mut colour = glam::Vec4::ONE;
-        if let Some(c) = corners.filter(|_| !self.shading.colors.is_empty()) {
-            colour = glam::Vec4::ZERO;
-            for (k, &i) in c.iter().enumerate() {
-                colour += self
-                    .shading
-                    .colors
-                    .get(i as usize)
-                    .copied()
-                    .unwrap_or(glam::Vec4::ONE)
-                    * b[k];
+        let mut ns = smooth;
+        if let Some(r) = &m.normal_texture {
+            if let Some(t) = self.textures.sample(r, uv, false) {
+                if let Some(n) = self.tangent_frame(tri, &at, smooth, r.tex_coord).and_then(
+                    |(tangent, bitangent)| {
+                        let s = m.normal_scale;
+                        let local = Vec3::new(
+                            (2.0 * t.x - 1.0) * s,
+                            (2.0 * t.y - 1.0) * s,
+                            2.0 * t.z - 1.0,
+                        );
+                        (tangent * local.x + bitangent * local.y + smooth * local.z).try_normalize()
+                    },
+                ) {
+                    ns = n;
+                }
             }
         }
-        let m = self.material(prim);
-        let uv_of = |attr: &[glam::Vec2]| -> glam::Vec2 {
-            let Some(c) = corners else {
-                return glam::Vec2::ZERO;
-            };
-            let mut sum = glam::Vec2::ZERO;
-            for (k, &i) in c.iter().enumerate() {
-                sum += attr.get(i as usize).copied().unwrap_or_default() * b[k];
-            }
-            sum
-        };
-        let uv = [uv_of(&self.shading.uv0), uv_of(&self.shading.uv1)];
-        let tex = |r: &Option<crate::scene::TextureRef>, srgb: bool| {
-            r.as_ref()
-                .and_then(|r| self.textures.sample(r, uv, srgb))
-                .unwrap_or(glam::Vec4::ONE)
-        };
+        // Turned to the side the ray came from.
+        let ns = if ns.dot(ng) < 0.0 { -ns } else { ns };
+        let colour = at.colour(&self.shading.colors);
         let base = Vec3::from_slice(&m.base_color_factor[..3])
             * colour.truncate()
-            * tex(&m.base_color_texture, true).truncate();
+            * self.tex(&m.base_color_texture, uv, true).truncate();
         // glTF: roughness in G, metalness in B.
-        let mr = tex(&m.metallic_roughness_texture, false);
+        let mr = self.tex(&m.metallic_roughness_texture, uv, false);
         let bsdf = Bsdf::new(
             base,
             m.metallic_factor * mr.z,
@@ -274,8 +440,61 @@ impl Surfaces {
             bsdf,
             emission: Vec3::from(m.emissive_factor)
                 * m.emissive_strength
-                * tex(&m.emissive_texture, true).truncate(),
+                * self.tex(&m.emissive_texture, uv, true).truncate(),
         }
+    }
+
+    /// The unit tangent and bitangent of normal `n` at `at`: the mesh's `TANGENT`
+    /// (bitangent = n × t · w, as glTF defines), or, where the mesh has none, the
+    /// triangle's gradient of `TEXCOORD_set`, with the bitangent along decreasing v (the
+    /// texture's +Y is up in the image, and glTF's v grows downwards). `None` where
+    /// neither defines a frame (degenerate UVs).
+    fn tangent_frame(
+        &self,
+        tri: &Triangle,
+        at: &Interp,
+        n: Vec3,
+        set: u32,
+    ) -> Option<(Vec3, Vec3)> {
+        let given = at.corners.and_then(|c| {
+            let t = &self.shading.tangents;
+            let mut sum = Vec3::ZERO;
+            for (k, &i) in c.iter().enumerate() {
+                sum += t.get(i as usize)?.truncate() * at.b[k];
+            }
+            let w = t.get(c[0] as usize)?.w;
+            Some((sum, if w < 0.0 { -1.0 } else { 1.0 }))
+        });
+        let (tangent, sign) = match given.filter(|(t, _)| t.length_squared() > 0.0) {
+            Some(g) => g,
+            None => {
+                let c = at.corners?;
+                let uv = if set == 0 {
+                    &self.shading.uv0
+                } else {
+                    &self.shading.uv1
+                };
+                let [t0, t1, t2] = c.map(|i| uv.get(i as usize).copied().unwrap_or_default());
+                let p = tri.v.map(Vec3::from);
+                let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+                let (d1, d2) = (t1 - t0, t2 - t0);
+                let det = d1.x * d2.y - d2.x * d1.y;
+                if det == 0.0 || !det.is_finite() {
+                    return None;
+                }
+                let dp_du = (e1 * d2.y - e2 * d1.y) / det;
+                let dp_dv = (e2 * d1.x - e1 * d2.x) / det;
+                let sign = if n.cross(dp_du).dot(-dp_dv) < 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                (dp_du, sign)
+            }
+        };
+        // Gram–Schmidt against the shading normal.
+        let t = (tangent - n * n.dot(tangent)).try_normalize()?;
+        Some((t, n.cross(t) * sign))
     }
 }
 
@@ -321,6 +540,101 @@ mod tests {
             let q = offset_ray(p, [0.0, 0.0, -1.0]);
             assert!(q[2] < p[2], "{scale}: {q:?}");
         }
+    }
+
+    /// A triangle in the XY plane facing +Z, with u along +X and v along −Y (glTF's v
+    /// grows down the image), and a normal texture of the one texel `rgb`.
+    fn normal_mapped(rgb: [f32; 3], scale: f32, tangents: Vec<Vec4>) -> (Surfaces, Triangle) {
+        use super::super::texture::{Texels, TextureSet};
+        use crate::scene::{Filter, Wrap};
+        let tri = Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        };
+        let mut shading = Shading::flat(1);
+        shading.materials = vec![0];
+        shading.uv0 = vec![
+            Vec2::new(0.0, 1.0),
+            Vec2::new(1.0, 1.0),
+            Vec2::new(0.0, 0.0),
+        ];
+        shading.tangents = tangents;
+        let material = Material {
+            normal_texture: Some(TextureRef {
+                texture: 0,
+                tex_coord: 0,
+                transform: None,
+            }),
+            normal_scale: scale,
+            ..Material::default()
+        };
+        let texels = Texels::from_rgba(1, 1, vec![[rgb[0], rgb[1], rgb[2], 1.0]]).unwrap();
+        let textures = TextureSet::from_texels(vec![(texels, [Wrap::Repeat; 2], Filter::Nearest)]);
+        (
+            Surfaces::from_parts(shading, vec![material], textures, Vec::new()),
+            tri,
+        )
+    }
+
+    fn shading_normal(s: &Surfaces, tri: &Triangle, dir: Vec3) -> Vec3 {
+        let hit = Hit {
+            t: 1.0,
+            u: 0.25,
+            v: 0.25,
+            prim: 0,
+        };
+        s.at(tri, &hit, dir).ns
+    }
+
+    #[test]
+    fn normal_textures_tilt_the_shading_normal_in_the_tangent_frame() {
+        let down = Vec3::NEG_Z;
+        // Tangent-space (0.6, 0, 0.8): towards +u, which is +X.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.6, 0.0, 0.8)).length() < 1e-5, "{n}");
+        // Tangent-space (0, 0.6, 0.8): towards the image's up, which is −v, here +Y.
+        let (s, tri) = normal_mapped([0.5, 0.8, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
+        // Scale 0 leaves the geometric normal.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 0.0, Vec::new());
+        assert!((shading_normal(&s, &tri, down) - Vec3::Z).length() < 1e-6);
+        // The mesh's TANGENT wins over the UV gradient: here +Y, so +X of the texture
+        // tilts towards +Y.
+        let t = vec![Vec4::new(0.0, 1.0, 0.0, 1.0); 3];
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, t);
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
+        // Seen from behind, the whole frame turns to the ray's side.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, Vec3::Z);
+        assert!(n.z < 0.0 && (n.length() - 1.0).abs() < 1e-5, "{n}");
+    }
+
+    #[test]
+    fn presence_follows_alpha_mode() {
+        let hit = Hit {
+            t: 1.0,
+            u: 0.2,
+            v: 0.2,
+            prim: 0,
+        };
+        let of = |alpha: f32, mode: AlphaMode| {
+            let m = Material {
+                base_color_factor: [1.0, 1.0, 1.0, alpha],
+                alpha_mode: mode,
+                ..Material::default()
+            };
+            let s = Surfaces::uniform(1, m, Vec::new());
+            (s.has_alpha(), s.presence(&hit))
+        };
+        assert_eq!(of(0.1, AlphaMode::Opaque), (false, Presence::Opaque));
+        let mask = AlphaMode::Mask { cutoff: 0.5 };
+        assert_eq!(of(0.4, mask), (true, Presence::Cut));
+        assert_eq!(of(0.5, mask), (true, Presence::Opaque));
+        assert_eq!(of(0.4, AlphaMode::Blend), (true, Presence::Blend(0.4)));
+        assert_eq!(of(0.0, AlphaMode::Blend).1, Presence::Cut);
+        assert_eq!(of(1.0, AlphaMode::Blend).1, Presence::Opaque);
     }
 
     #[test]

@@ -2,8 +2,8 @@
 //! a material uses, and only when a render shades), then sampled as glTF says: texture
 //! coordinates through `KHR_texture_transform`, each axis wrapped by its sampler's mode,
 //! bilinear filtering unless the sampler asks for nearest, and colour textures (base colour,
-//! emissive) decoded from sRGB before filtering while data textures (metallic-roughness)
-//! stay linear. Mipmaps are not built: a texel per lookup, without minification filtering.
+//! emissive) decoded from sRGB before filtering while data textures (metallic-roughness,
+//! normal) stay linear. Mipmaps are not built: a texel per lookup, without minification filtering.
 
 use std::sync::Arc;
 
@@ -143,13 +143,14 @@ pub struct TextureSet {
 
 impl TextureSet {
     /// Decodes every image that a material of `scene` samples through a texture this
-    /// renderer uses (base colour, metallic-roughness, emissive), each image once.
+    /// renderer uses (base colour, metallic-roughness, normal, emissive), each image once.
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
         let mut used = vec![false; scene.textures.len()];
         for m in &scene.materials {
             for r in [
                 m.base_color_texture,
                 m.metallic_roughness_texture,
+                m.normal_texture,
                 m.emissive_texture,
             ]
             .into_iter()
@@ -191,6 +192,16 @@ impl TextureSet {
             textures.push(Some((texels, [t.sampler.wrap_s, t.sampler.wrap_t], filter)));
         }
         Ok(TextureSet { textures })
+    }
+
+    /// Textures from decoded images, in texture-index order (tests, generated scenes).
+    pub fn from_texels(list: Vec<(Texels, [Wrap; 2], Filter)>) -> TextureSet {
+        TextureSet {
+            textures: list
+                .into_iter()
+                .map(|(t, wrap, filter)| Some((Arc::new(t), wrap, filter)))
+                .collect(),
+        }
     }
 
     /// The value of texture reference `r` at texture coordinates `uv` (`uv[k]` is

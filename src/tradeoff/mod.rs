@@ -65,7 +65,7 @@ pub enum Axis {
     Spp,
     /// Path bounces.
     Bounces,
-    /// Russian roulette on or off (not in the renderer yet: no rungs).
+    /// Russian roulette from the first, second or third scattering on.
     Roulette,
     /// Ray/triangle test: fast or watertight.
     Precision,
@@ -234,11 +234,30 @@ pub fn ladder(setup: &Setup) -> (Vec<Rung>, Vec<String>) {
                 }
             }
             Axis::Roulette => {
-                // RUSSIAN ROULETTE GOES HERE. The path integrator has no Russian roulette
-                // yet (issue 9 item 3). When `RenderRequest` gets its switch, push two
-                // rungs: the base with roulette on and off, e.g.
-                // `push(axis, "roulette=on".into(), with(&|r| r.roulette = true), setup.tuning)`.
-                notes.push("roulette: the renderer has no Russian roulette yet".to_string());
+                // Roulette from each scattering the base's paths reach (at most the third):
+                // earlier starts cut more paths short, saving time for noise.
+                let last = base.bounces.min(3);
+                if base.roulette.is_some() || last == 0 {
+                    notes.push(format!(
+                        "roulette: no rungs (the base has {} and {} bounces)",
+                        if base.roulette.is_some() {
+                            "roulette on"
+                        } else {
+                            "roulette off"
+                        },
+                        base.bounces
+                    ));
+                }
+                if base.roulette.is_none() {
+                    for k in 1..=last {
+                        push(
+                            axis,
+                            format!("roulette={k}"),
+                            with(&|r| r.roulette = Some(k)),
+                            setup.tuning,
+                        );
+                    }
+                }
             }
             Axis::Precision => {
                 for p in [Precision::Fast, Precision::Watertight] {
