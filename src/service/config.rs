@@ -96,6 +96,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_HEADER_TIMEOUT", default_value_t = 10.0, value_parser = parse_seconds)]
     pub header_timeout: f64,
 
+    /// Seconds a request body may go without a byte arriving while the server waits for
+    /// it; then the request is answered 408 and its memory freed (a body whose
+    /// Content-Length lies, a chunked body that never ends).
+    #[arg(long, env = "RAYD_BODY_TIMEOUT", default_value_t = 30.0, value_parser = parse_seconds)]
+    pub body_timeout: f64,
+
     /// Bytes that stored blobs (uploads, geometry versions, results) may occupy in the data
     /// directory; past it, a write fails as on a full disk (507) and nothing is half-stored.
     /// Default: none (only the disk limits).
@@ -153,6 +159,11 @@ impl ServeArgs {
     /// `--grace` as a duration.
     pub fn grace(&self) -> Duration {
         Duration::from_secs_f64(self.grace)
+    }
+
+    /// `--body-timeout` as a duration.
+    pub fn body_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.body_timeout)
     }
 
     /// `--header-timeout` as a duration.

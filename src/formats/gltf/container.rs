@@ -172,7 +172,12 @@ pub(super) fn parse(container: &Container<'_>) -> Result<json::Root, GltfError> 
     json::Root::from_slice(container.json).map_err(|e| json_error(e, container.is_glb))
 }
 
-/// Every buffer's bytes, cut to its declared `byteLength`.
+/// Every buffer's bytes, exactly its declared `byteLength`.
+///
+/// A `data:` URI must decode to exactly `byteLength` bytes; its decoded size is known from
+/// the payload's length, so one that cannot match is refused before anything is decoded (a
+/// file declaring 36 bytes must not make the loader decode gigabytes). A GLB `BIN` chunk may
+/// exceed `byteLength` only by its padding of at most 3 bytes.
 pub(super) fn resolve_buffers<'a>(
     root: &json::Root,
     bin: Option<&'a [u8]>,
@@ -187,6 +192,15 @@ pub(super) fn resolve_buffers<'a>(
             None => return Err(GltfError::NoBufferData { buffer: i }),
             Some(uri) => {
                 if let Some(rest) = uri.strip_prefix("data:") {
+                    let decoded_len = data_uri_decoded_len(rest)
+                        .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?;
+                    if decoded_len != declared {
+                        return Err(GltfError::DataUriLength {
+                            buffer: i,
+                            declared,
+                            actual: decoded_len,
+                        });
+                    }
                     Cow::Owned(
                         decode_data_uri(rest)
                             .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?,
@@ -202,6 +216,14 @@ pub(super) fn resolve_buffers<'a>(
                 declared,
                 actual: data.len() as u64,
             });
+        }
+        if let Cow::Borrowed(b) = &data {
+            if b.len() as u64 - declared > 3 {
+                return Err(GltfError::BinChunkTooLong {
+                    declared,
+                    actual: b.len() as u64,
+                });
+            }
         }
         // `declared <= data.len()` so this fits in usize. The GLB BIN chunk may carry up to
         // three bytes of padding past `byteLength`; views must stay within `byteLength`.
@@ -221,6 +243,9 @@ pub(super) fn resolve_buffers<'a>(
 pub(super) enum UriError {
     /// A scheme, an absolute path or a malformed escape.
     Unsupported,
+    /// A path that leaves the file's directory (a `..` component, or one that decodes to an
+    /// absolute path or a drive): refused before any file is opened.
+    Escapes,
     /// No base directory: only embedded data is allowed.
     NotAllowed,
     /// The file could not be read.
@@ -234,7 +259,10 @@ pub(super) enum UriError {
 
 /// Reads a file stored beside the `.gltf`. URIs are relative references (RFC 3986); a
 /// scheme or an absolute path is refused, and so is any file access when there is no base
-/// directory (a scene uploaded over HTTP must not read the server's files).
+/// directory (a scene uploaded over HTTP must not read the server's files). The decoded path
+/// must stay inside the directory: `..`, a root or a drive in it (also when spelled with
+/// `%2e%2e` or `%2f`) is refused without opening anything, so a file cannot make rayd read
+/// `/etc/passwd` or a neighbour's data.
 pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, UriError> {
     let has_scheme = uri
         .split_once(':')
@@ -248,6 +276,9 @@ pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8
     // Query and fragment parts are not part of the file name.
     let path_part = uri.split(['?', '#']).next().unwrap_or_default();
     let decoded = percent_decode(path_part).ok_or(UriError::Unsupported)?;
+    if !stays_inside(&decoded) {
+        return Err(UriError::Escapes);
+    }
     let path = base.join(decoded);
     std::fs::read(&path).map_err(|e| UriError::Io {
         path: path.display().to_string(),
@@ -255,10 +286,26 @@ pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8
     })
 }
 
+/// Whether the relative path `p` names something inside its base directory: only plain
+/// names and `.`, no `..`, root, drive or NUL, with `\\` counted as a separator too (a
+/// file written on Windows).
+fn stays_inside(p: &str) -> bool {
+    if p.is_empty() || p.contains('\0') {
+        return false;
+    }
+    p.split(['/', '\\'])
+        .enumerate()
+        .all(|(i, part)| part != ".." && !(i == 0 && (part.is_empty() || part.contains(':'))))
+}
+
 /// [`read_relative`] for buffer `buffer`, with the buffer errors.
 fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
     read_relative(uri, base_dir).map_err(|e| match e {
         UriError::Unsupported => GltfError::UnsupportedUri {
+            buffer,
+            uri: uri.to_string(),
+        },
+        UriError::Escapes => GltfError::UriEscapes {
             buffer,
             uri: uri.to_string(),
         },
@@ -306,6 +353,33 @@ pub(super) fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
         ));
     }
     base64_decode(payload.as_bytes())
+}
+
+/// The number of bytes the part of a data URI after `data:` decodes to, from the payload's
+/// length alone (the characters are checked when it is decoded).
+pub(super) fn data_uri_decoded_len(rest: &str) -> Result<u64, String> {
+    let Some((header, payload)) = rest.split_once(',') else {
+        return Err("the data URI has no ',' before its payload".to_string());
+    };
+    if !header.split(';').any(|p| p == "base64") {
+        return Err(format!(
+            "only base64 data URIs are supported (header is {header:?})"
+        ));
+    }
+    let b = payload.as_bytes();
+    let trimmed = match b {
+        [rest @ .., b'=', b'='] => rest,
+        [rest @ .., b'='] => rest,
+        _ => b,
+    };
+    let n = trimmed.len() as u64;
+    if n % 4 == 1 {
+        return Err(format!(
+            "base64 payload has an impossible length ({} characters)",
+            b.len()
+        ));
+    }
+    Ok(n / 4 * 3 + (n % 4).saturating_sub(1))
 }
 
 /// Standard base64 (RFC 4648 §4), padding optional, no whitespace.

@@ -128,6 +128,33 @@ pub enum GltfError {
         /// The URI.
         uri: String,
     },
+    /// A buffer's URI is a relative path that leaves the file's directory (`..`, or one that
+    /// decodes to a root or a drive); nothing was opened.
+    #[error("buffer {buffer}: URI {uri:?} leaves the file's directory (`..`, a root or a drive): refused")]
+    UriEscapes {
+        /// Buffer index.
+        buffer: usize,
+        /// The URI.
+        uri: String,
+    },
+    /// A buffer's `data:` URI decodes to another number of bytes than its `byteLength`.
+    #[error("buffer {buffer}: its data: URI decodes to {actual} bytes but byteLength is {declared} (they must be equal)")]
+    DataUriLength {
+        /// Buffer index.
+        buffer: usize,
+        /// `byteLength`.
+        declared: u64,
+        /// Bytes the URI decodes to.
+        actual: u64,
+    },
+    /// The GLB `BIN` chunk is longer than buffer 0's `byteLength` plus 3 bytes of padding.
+    #[error("GLB BIN chunk has {actual} bytes but buffer 0's byteLength is {declared} (at most 3 bytes of padding may follow)")]
+    BinChunkTooLong {
+        /// `byteLength`.
+        declared: u64,
+        /// The chunk's length.
+        actual: u64,
+    },
     /// A buffer is stored in a separate file, but no directory was given to find it in
     /// (e.g. a `.gltf` uploaded on its own): only embedded buffers are allowed.
     #[error("buffer {buffer} refers to external file {uri:?}, but only embedded buffers are allowed here")]
