@@ -219,7 +219,9 @@ fn documents_that_ask_for_too_much() {
 
     // An instancing explosion: 30000 nodes place one mesh of 10000 triangles (its positions
     // an accessor without a view, which costs no file bytes): 3 * 10^8 triangles from a
-    // 400 KB file, more than the loader's limit, refused before anything is allocated.
+    // 400 KB file, more than the loader's limit, refused before anything is allocated. And
+    // 7000 nodes, 7 * 10^7 triangles (2.5 GiB of positions): under the loader's 2^28 but over
+    // the service's --max-triangles (2^26).
     let mut d = triangle_doc();
     d["accessors"][0] = json!({"componentType": 5126, "count": 30000, "type": "VEC3"});
     let nodes: Vec<Value> = (0..30000).map(|_| json!({"mesh": 0})).collect();
@@ -229,7 +231,13 @@ fn documents_that_ask_for_too_much() {
     problem(
         &f.upload(GLTF, &bytes_of(&d)),
         400,
-        &["300000000 triangles", "limit"],
+        &["300000000 triangles", "limit of 67108864"],
+    );
+    d["scenes"][0]["nodes"] = json!((0..7000).collect::<Vec<u32>>());
+    problem(
+        &f.upload(GLTF, &bytes_of(&d)),
+        400,
+        &["70000000 triangles", "limit of 67108864"],
     );
     assert!(t0.elapsed() < Duration::from_secs(5), "{:?}", t0.elapsed());
     // Instances that multiply through the node graph cannot exist: it must be a forest, so

@@ -80,6 +80,9 @@ pub trait Observer: Send + Sync {
 pub struct AppOptions {
     /// Bytes of evaluated geometry (positions per scene, version and time) kept in memory.
     pub geometry_bytes: usize,
+    /// Most triangles an uploaded scene (or a geometry update) may have
+    /// (`--max-triangles`); the loader's own bound is `formats::gltf::MAX_TRIANGLES`.
+    pub max_triangles: u64,
     /// Who hears about finished work.
     pub observer: Option<Arc<dyn Observer>>,
 }
@@ -88,6 +91,7 @@ impl std::fmt::Debug for AppOptions {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("AppOptions")
             .field("geometry_bytes", &self.geometry_bytes)
+            .field("max_triangles", &self.max_triangles)
             .field("observer", &self.observer.is_some())
             .finish()
     }
@@ -97,6 +101,7 @@ impl Default for AppOptions {
     fn default() -> Self {
         AppOptions {
             geometry_bytes: 1 << 30,
+            max_triangles: crate::formats::gltf::MAX_TRIANGLES,
             observer: None,
         }
     }
@@ -115,6 +120,7 @@ struct Inner {
     scenes: scenes::SceneCache,
     live: Mutex<HashMap<String, jobs::Live>>,
     observer: Option<Arc<dyn Observer>>,
+    max_triangles: u64,
     thumbnails: thumbnails::Thumbnails,
 }
 
@@ -130,6 +136,7 @@ impl App {
                 scenes: scenes::SceneCache::new(options.geometry_bytes),
                 live: Mutex::new(HashMap::new()),
                 observer: options.observer,
+                max_triangles: options.max_triangles,
                 thumbnails: thumbnails::Thumbnails::new(weak.clone()),
             }),
         }

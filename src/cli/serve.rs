@@ -54,6 +54,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         Arc::clone(&engine),
         crate::app::AppOptions {
             observer: Some(Arc::new(state.metrics.clone())),
+            max_triangles: config.max_triangles,
             ..Default::default()
         },
     );

@@ -51,6 +51,11 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_MAX_PIXELS", default_value_t = 1 << 24)]
     pub max_pixels: u64,
 
+    /// Triangles of one uploaded scene, instancing included (2^26: 2.25 GiB of positions);
+    /// counted from the document before any is placed. At most 2^28, the loader's bound.
+    #[arg(long, env = "RAYD_MAX_TRIANGLES", default_value_t = 1 << 26)]
+    pub max_triangles: u64,
+
     /// Samples per pixel of one render.
     #[arg(long, env = "RAYD_MAX_SPP", default_value_t = 4096)]
     pub max_spp: u32,
@@ -146,6 +151,7 @@ impl ServeArgs {
             ("max-rays", self.max_rays),
             ("max-pixels", self.max_pixels),
             ("max-spp", u64::from(self.max_spp)),
+            ("max-triangles", self.max_triangles),
             ("max-connections", self.max_connections as u64),
             ("max-store-bytes", self.max_store_bytes.unwrap_or(1)),
         ] {

@@ -434,12 +434,13 @@ pub enum GltfError {
         /// `u32::MAX`.
         limit: u64,
     },
-    /// The scene would have more than [`MAX_TRIANGLES`] triangles.
+    /// The scene would have more triangles than allowed ([`MAX_TRIANGLES`], or the
+    /// service's `--max-triangles`).
     #[error("the scene would have {count} triangles, more than the limit of {limit}")]
     TooManyTriangles {
         /// Triangles the document asks for.
         count: u64,
-        /// [`MAX_TRIANGLES`].
+        /// The limit.
         limit: u64,
     },
 }
@@ -515,6 +516,21 @@ pub fn load_with(
     options: &LoadOptions,
     parts: Parts,
 ) -> Result<Scene, GltfError> {
+    load_limited(bytes, base_dir, options, parts, MAX_TRIANGLES)
+}
+
+/// [`load_with`] refusing scenes of more than `max_triangles` triangles (at most
+/// [`MAX_TRIANGLES`]), counted from the document before any is placed: the service's
+/// `--max-triangles`, so that a small upload whose nodes instance one mesh many times cannot
+/// make the server allocate gigabytes.
+pub fn load_limited(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    options: &LoadOptions,
+    parts: Parts,
+    max_triangles: u64,
+) -> Result<Scene, GltfError> {
+    let max_triangles = max_triangles.min(MAX_TRIANGLES);
     if let Some(t) = options.time.filter(|t| !t.is_finite()) {
         return Err(GltfError::BadTime(t));
     }
@@ -572,10 +588,10 @@ pub fn load_with(
             total = total.saturating_add(count);
         }
     }
-    if total > MAX_TRIANGLES {
+    if total > max_triangles {
         return Err(GltfError::TooManyTriangles {
             count: total,
-            limit: MAX_TRIANGLES,
+            limit: max_triangles,
         });
     }
 
