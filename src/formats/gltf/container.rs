@@ -429,6 +429,85 @@ mod tests {
     use super::*;
 
     #[test]
+    fn paths_that_leave_the_directory_are_refused() {
+        for inside in [
+            "a.bin",
+            "./a.bin",
+            "sub/a.bin",
+            "sub//a.bin",
+            "a..b.bin",
+            "..a",
+        ] {
+            assert!(stays_inside(inside), "{inside}");
+        }
+        for outside in [
+            "../a.bin",
+            "sub/../../a.bin",
+            "..",
+            "/etc/passwd",
+            "\\\\server\\share",
+            "..\\a.bin",
+            "C:/x",
+            "C:",
+            "a\0b",
+            "",
+        ] {
+            assert!(!stays_inside(outside), "{outside}");
+        }
+        // Percent-encoded dots and slashes are decoded before the check.
+        let dir = std::env::temp_dir();
+        for uri in [
+            "%2e%2e/a.bin",
+            "%2E%2E%2Fa.bin",
+            "%2Fetc%2Fpasswd",
+            "sub%2F..%2F..%2Fx",
+        ] {
+            assert!(
+                matches!(read_relative(uri, Some(&dir)), Err(UriError::Escapes)),
+                "{uri}"
+            );
+        }
+    }
+
+    #[test]
+    fn data_uri_length_is_known_before_decoding() {
+        for bytes in [&b""[..], b"f", b"fo", b"foo", b"foob", b"fooba", b"foobar"] {
+            for padded in [true, false] {
+                let mut text = base64_encode(bytes);
+                if !padded {
+                    text = text.trim_end_matches('=').to_string();
+                }
+                let uri = format!("application/octet-stream;base64,{text}");
+                assert_eq!(
+                    data_uri_decoded_len(&uri).unwrap(),
+                    decode_data_uri(&uri).unwrap().len() as u64,
+                    "{text}"
+                );
+            }
+        }
+        assert!(data_uri_decoded_len("text/plain,abc").is_err());
+        assert!(data_uri_decoded_len(";base64,A").is_err());
+    }
+
+    fn base64_encode(b: &[u8]) -> String {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for c in b.chunks(3) {
+            let n = (u32::from(c[0]) << 16)
+                | (u32::from(*c.get(1).unwrap_or(&0)) << 8)
+                | u32::from(*c.get(2).unwrap_or(&0));
+            for k in 0..4 {
+                if k <= c.len() {
+                    out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
     fn base64_round_trips() {
         assert_eq!(base64_decode(b"").unwrap(), b"");
         assert_eq!(base64_decode(b"Zg==").unwrap(), b"f");
