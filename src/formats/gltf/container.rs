@@ -372,6 +372,17 @@ pub(super) fn data_uri_decoded_len(rest: &str) -> Result<u64, String> {
         [rest @ .., b'='] => rest,
         _ => b,
     };
+    // A malformed payload is reported as such, not as a length that disagrees; checking
+    // the characters allocates nothing.
+    if let Some(k) = trimmed
+        .iter()
+        .position(|&c| !(c.is_ascii_alphanumeric() || c == b'+' || c == b'/'))
+    {
+        return Err(format!(
+            "invalid base64 character {:?} at payload offset {k}",
+            trimmed[k] as char
+        ));
+    }
     let n = trimmed.len() as u64;
     if n % 4 == 1 {
         return Err(format!(
