@@ -82,6 +82,9 @@ pub trait Observer: Send + Sync {
 pub struct AppOptions {
     /// Bytes of evaluated geometry (positions per scene, version and time) kept in memory.
     pub geometry_bytes: usize,
+    /// Most triangles an uploaded scene (or a geometry update) may have
+    /// (`--max-triangles`); the loader's own bound is `formats::gltf::MAX_TRIANGLES`.
+    pub max_triangles: u64,
     /// Who hears about finished work.
     pub observer: Option<Arc<dyn Observer>>,
     /// Who POSTs render jobs' callbacks; `None`: a job with a `callback` is refused (422).
@@ -92,6 +95,7 @@ impl std::fmt::Debug for AppOptions {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("AppOptions")
             .field("geometry_bytes", &self.geometry_bytes)
+            .field("max_triangles", &self.max_triangles)
             .field("observer", &self.observer.is_some())
             .field("callbacks", &self.callbacks.is_some())
             .finish()
@@ -102,6 +106,7 @@ impl Default for AppOptions {
     fn default() -> Self {
         AppOptions {
             geometry_bytes: 1 << 30,
+            max_triangles: crate::formats::gltf::MAX_TRIANGLES,
             observer: None,
             callbacks: None,
         }
@@ -121,6 +126,7 @@ struct Inner {
     scenes: scenes::SceneCache,
     live: Mutex<HashMap<String, jobs::Live>>,
     observer: Option<Arc<dyn Observer>>,
+    max_triangles: u64,
     thumbnails: thumbnails::Thumbnails,
     callbacks: Option<Arc<dyn CallbackSender>>,
     /// Jobs whose callback a task is delivering now.
@@ -141,6 +147,7 @@ impl App {
                 observer: options.observer,
                 callbacks: options.callbacks,
                 delivering: Mutex::new(HashSet::new()),
+                max_triangles: options.max_triangles,
                 thumbnails: thumbnails::Thumbnails::new(weak.clone()),
             }),
         }

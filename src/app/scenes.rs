@@ -127,26 +127,43 @@ fn check_name(name: &str) -> Result<(), AppError> {
     Ok(())
 }
 
-/// Parses an upload (CPU work: call on the pool).
-fn parse(kind: UploadKind, bytes: &[u8]) -> Result<Scene, AppError> {
-    parse_with(kind, bytes, Parts::Geometry)
+/// The bound on reloading a stored scene: it passed `--max-triangles` when it was uploaded,
+/// and lowering the option later must not make it unreadable.
+const STORED_MAX: u64 = crate::formats::gltf::MAX_TRIANGLES;
+
+/// Parses an upload of at most `max` triangles (CPU work: call on the pool).
+fn parse(kind: UploadKind, bytes: &[u8], max: u64) -> Result<Scene, AppError> {
+    parse_with(kind, bytes, Parts::Geometry, max)
 }
 
 /// [`parse`] keeping `parts` (a TRI1 upload has geometry only).
-fn parse_with(kind: UploadKind, bytes: &[u8], parts: Parts) -> Result<Scene, AppError> {
+fn parse_with(kind: UploadKind, bytes: &[u8], parts: Parts, max: u64) -> Result<Scene, AppError> {
     let upload = |detail: String| AppError::BadUpload {
         detail,
         byte_offset: None,
     };
     match kind {
-        UploadKind::Tri => read_tri(bytes)
-            .map(Scene::from_triangles)
-            .map_err(|e| upload(e.to_string())),
+        UploadKind::Tri => {
+            let count = tri_count(bytes).map_err(|e| upload(e.to_string()))?;
+            if count as u64 > max {
+                return Err(upload(too_many_triangles(count as u64, max)));
+            }
+            read_tri(bytes)
+                .map(Scene::from_triangles)
+                .map_err(|e| upload(e.to_string()))
+        }
         UploadKind::Glb | UploadKind::Gltf => {
-            crate::formats::gltf::load_with(bytes, None, &LoadOptions { time: None }, parts)
+            crate::formats::gltf::load_limited(bytes, None, &LoadOptions { time: None }, parts, max)
                 .map_err(|e| upload(e.to_string()))
         }
     }
+}
+
+/// The refusal of a TRI1 body over `--max-triangles`, worded as the glTF loader's.
+fn too_many_triangles(count: u64, max: u64) -> String {
+    format!(
+        "the scene would have {count} triangles, more than the limit of {max} (--max-triangles)"
+    )
 }
 
 /// A scene's cameras at one pose.
@@ -253,7 +270,8 @@ impl App {
             return Ok((SceneView::from_record(existing), false));
         }
         let b = bytes.clone();
-        let scene = self.cpu(move || parse(kind, &b)).await??;
+        let max = self.inner.max_triangles;
+        let scene = self.cpu(move || parse(kind, &b, max)).await??;
         let summary = scene_info(&scene).to_string();
         let blob = self.store().put_blob(bytes).await?;
         let (record, created) = self
@@ -322,7 +340,7 @@ impl App {
             return Ok(Arc::clone(l));
         }
         let (kind, bytes) = self.stored(id).await?;
-        let scene = self.cpu(move || parse(kind, &bytes)).await??;
+        let scene = self.cpu(move || parse(kind, &bytes, STORED_MAX)).await??;
         let loaded = Arc::new(Loaded {
             scene: Arc::new(scene),
             shaded: std::sync::OnceLock::new(),
@@ -343,7 +361,7 @@ impl App {
         }
         let (kind, bytes) = self.stored(id).await?;
         let scene = self
-            .cpu(move || parse_with(kind, &bytes, Parts::Shading))
+            .cpu(move || parse_with(kind, &bytes, Parts::Shading, STORED_MAX))
             .await??;
         Ok(Arc::clone(loaded.shaded.get_or_init(|| Arc::new(scene))))
     }

@@ -63,6 +63,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         crate::app::AppOptions {
             observer: Some(Arc::new(state.metrics.clone())),
             callbacks: callbacks.map(|c| Arc::new(c) as Arc<dyn crate::app::CallbackSender>),
+            max_triangles: config.max_triangles,
             ..Default::default()
         },
     );

@@ -11,6 +11,12 @@ use glam::{Vec2, Vec4};
 
 use crate::scene::{Filter, Scene, TextureRef, Wrap};
 
+/// Most pixels of one texture: 8192 × 8192, 1 GiB once decoded to f32 RGBA.
+pub const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
+
+/// Longest side of one texture, pixels.
+pub const MAX_TEXTURE_SIDE: u32 = 16384;
+
 /// Errors of preparing textures.
 #[derive(Debug, thiserror::Error)]
 pub enum TextureError {
@@ -37,8 +43,31 @@ pub struct Texels {
 
 impl Texels {
     /// Decodes `bytes` (any format the `image` crate was built with: PNG, JPEG).
+    ///
+    /// A few bytes of PNG can declare 100000 × 100000 pixels (a decompression bomb), so
+    /// the declared size is checked against [`MAX_TEXTURE_SIDE`] and [`MAX_TEXTURE_PIXELS`]
+    /// before a pixel is decoded, and the decoder itself runs under the `image` crate's
+    /// allocation limit.
     pub fn decode(bytes: &[u8]) -> Result<Texels, String> {
-        let img = image::load_from_memory(bytes).map_err(|e| e.to_string())?;
+        use image::ImageDecoder;
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| e.to_string())?;
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(MAX_TEXTURE_PIXELS * 8);
+        reader.limits(limits);
+        let decoder = reader.into_decoder().map_err(|e| e.to_string())?;
+        let (w, h) = decoder.dimensions();
+        if w > MAX_TEXTURE_SIDE
+            || h > MAX_TEXTURE_SIDE
+            || u64::from(w) * u64::from(h) > MAX_TEXTURE_PIXELS
+        {
+            return Err(format!(
+                "the image declares {w} × {h} pixels, over the limit of {MAX_TEXTURE_PIXELS} pixels \
+                 and {MAX_TEXTURE_SIDE} on a side"
+            ));
+        }
+        let img = image::DynamicImage::from_decoder(decoder).map_err(|e| e.to_string())?;
         let rgba = img.to_rgba32f();
         let (width, height) = rgba.dimensions();
         if width == 0 || height == 0 {

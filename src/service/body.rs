@@ -14,8 +14,11 @@
 //! after `Retry-After`, and the bound is about the server's memory, not a rate quota.
 
 use std::collections::HashMap;
+use std::future::Future;
 use std::net::{IpAddr, SocketAddr};
+use std::pin::Pin;
 use std::sync::{Arc, Mutex};
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use axum::body::Body;
@@ -214,10 +217,17 @@ impl BodyReader {
                 return Ok(None);
             };
             let frame = frame.map_err(|e| {
-                ApiError::bad_request(format!(
-                    "the request body could not be read after {} bytes: {e}",
-                    self.read
-                ))
+                let e: &(dyn std::error::Error + 'static) = &e;
+                match idle_cause(e) {
+                    Some(idle) => ApiError::request_timeout(format!(
+                        "the request body stopped after {} bytes: {idle}",
+                        self.read
+                    )),
+                    None => ApiError::bad_request(format!(
+                        "the request body could not be read after {} bytes: {e}",
+                        self.read
+                    )),
+                }
                 .with("byte_offset", self.read)
             })?;
             let Ok(data) = frame.into_data() else {
@@ -239,6 +249,82 @@ impl BodyReader {
             }
         }
     }
+}
+
+/// The error a request body gives when no byte arrived for its idle timeout.
+#[derive(Debug, thiserror::Error)]
+#[error("no byte arrived for {} s (--body-timeout)", .0.as_secs_f64())]
+pub struct BodyIdle(pub Duration);
+
+/// The [`BodyIdle`] in `e` or its sources, if the body failed by going idle.
+pub fn idle_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a BodyIdle> {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if let Some(idle) = err.downcast_ref::<BodyIdle>() {
+            return Some(idle);
+        }
+        cur = err.source();
+    }
+    None
+}
+
+/// A request body that fails with [`BodyIdle`] when the server has waited `idle` for its
+/// next byte. Only time spent waiting counts: a handler that pauses between reads (a trace
+/// feeding the engine) is not charged for its own pauses.
+struct IdleTimeoutBody {
+    inner: Body,
+    idle: Duration,
+    sleep: Pin<Box<tokio::time::Sleep>>,
+    waiting: bool,
+}
+
+impl http_body::Body for IdleTimeoutBody {
+    type Data = Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<http_body::Frame<Bytes>, axum::Error>>> {
+        let this = &mut *self;
+        if !this.waiting {
+            let deadline = tokio::time::Instant::now() + this.idle;
+            this.sleep.as_mut().reset(deadline);
+            this.waiting = true;
+        }
+        match Pin::new(&mut this.inner).poll_frame(cx) {
+            Poll::Ready(frame) => {
+                this.waiting = false;
+                Poll::Ready(frame)
+            }
+            Poll::Pending => match this.sleep.as_mut().poll(cx) {
+                Poll::Ready(()) => Poll::Ready(Some(Err(axum::Error::new(BodyIdle(this.idle))))),
+                Poll::Pending => Poll::Pending,
+            },
+        }
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.inner.size_hint()
+    }
+}
+
+/// Middleware: every request body gets the idle timeout `idle` (`--body-timeout`), so a
+/// client that declares more bytes than it sends, or a chunked body that never ends, holds
+/// its connection, its memory budget and its per-client slot for at most that long.
+pub async fn idle_timeout(State(idle): State<Duration>, req: Request, next: Next) -> Response {
+    let (parts, body) = req.into_parts();
+    let body = Body::new(IdleTimeoutBody {
+        inner: body,
+        idle,
+        sleep: Box::pin(tokio::time::sleep(idle)),
+        waiting: false,
+    });
+    next.run(Request::from_parts(parts, body)).await
 }
 
 /// The 413 for a body over `limit`.

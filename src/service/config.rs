@@ -51,6 +51,11 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_MAX_PIXELS", default_value_t = 1 << 24)]
     pub max_pixels: u64,
 
+    /// Triangles of one uploaded scene, instancing included (2^26: 2.25 GiB of positions);
+    /// counted from the document before any is placed. At most 2^28, the loader's bound.
+    #[arg(long, env = "RAYD_MAX_TRIANGLES", default_value_t = 1 << 26)]
+    pub max_triangles: u64,
+
     /// Samples per pixel of one render.
     #[arg(long, env = "RAYD_MAX_SPP", default_value_t = 4096)]
     pub max_spp: u32,
@@ -95,6 +100,12 @@ pub struct ServeArgs {
     /// connection stays open (closes slow or silent clients).
     #[arg(long, env = "RAYD_HEADER_TIMEOUT", default_value_t = 10.0, value_parser = parse_seconds)]
     pub header_timeout: f64,
+
+    /// Seconds a request body may go without a byte arriving while the server waits for
+    /// it; then the request is answered 408 and its memory freed (a body whose
+    /// Content-Length lies, a chunked body that never ends).
+    #[arg(long, env = "RAYD_BODY_TIMEOUT", default_value_t = 30.0, value_parser = parse_seconds)]
+    pub body_timeout: f64,
 
     /// Bytes that stored blobs (uploads, geometry versions, results) may occupy in the data
     /// directory; past it, a write fails as on a full disk (507) and nothing is half-stored.
@@ -158,6 +169,7 @@ impl ServeArgs {
             ("max-rays", self.max_rays),
             ("max-pixels", self.max_pixels),
             ("max-spp", u64::from(self.max_spp)),
+            ("max-triangles", self.max_triangles),
             ("max-connections", self.max_connections as u64),
             ("max-store-bytes", self.max_store_bytes.unwrap_or(1)),
             ("callback-attempts", u64::from(self.callback_attempts)),
@@ -177,6 +189,11 @@ impl ServeArgs {
     /// `--callback-timeout` as a duration.
     pub fn callback_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.callback_timeout)
+    }
+
+    /// `--body-timeout` as a duration.
+    pub fn body_timeout(&self) -> Duration {
+        Duration::from_secs_f64(self.body_timeout)
     }
 
     /// `--header-timeout` as a duration.

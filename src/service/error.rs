@@ -137,6 +137,16 @@ impl ApiError {
         e
     }
 
+    /// 408: the client stopped sending its request body (no byte for `--body-timeout`).
+    pub fn request_timeout(detail: impl Into<Cow<'static, str>>) -> Self {
+        Self::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "request-timeout",
+            "Request timeout",
+            detail,
+        )
+    }
+
     /// 409: the resource is not in a state that allows this (a result not ready yet).
     pub fn conflict(detail: impl Into<Cow<'static, str>>) -> Self {
         Self::new(StatusCode::CONFLICT, "conflict", "Conflict", detail)

@@ -10,7 +10,8 @@
 //! 1. request id (`X-Request-Id` both ways; finishes every error as problem+json),
 //! 2. the request's tracing span (id, method, route template),
 //! 3. metrics (count and duration per route template and status),
-//! 4. on `/v1` routes only: the bearer token check, then the per-client bound.
+//! 4. the request body's idle timeout (`--body-timeout`),
+//! 5. on `/v1` routes only: the bearer token check, then the per-client bound.
 //!
 //! Handlers return `Result<_, ApiError>`, take bodies with [`ApiJson`] or
 //! [`read_body_limited`]/[`BodyReader`] and query strings with [`ApiQuery`], so every
@@ -238,6 +239,10 @@ pub fn router(state: AppState, v1: Routes) -> Router {
         .merge(v1)
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
+        .layer(from_fn_with_state(
+            state.config.body_timeout(),
+            body::idle_timeout,
+        ))
         .layer(from_fn_with_state(
             state.metrics.clone(),
             metrics::record_request,

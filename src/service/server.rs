@@ -4,7 +4,8 @@
 //! axum's own `serve` hides the knobs a public server needs, so connections are served with
 //! hyper-util directly: `SO_REUSEADDR` lets a restart right after a crash bind the address
 //! still in TIME_WAIT; the header read timeout closes clients that send headers byte by
-//! byte (slowloris) and keep-alive connections left idle; `max_buf_size` bounds a request's
+//! byte (slowloris) and keep-alive connections left idle, and a connection that sends no
+//! byte at all is closed after the same time (hyper's timer only starts at a first byte); `max_buf_size` bounds a request's
 //! head; a semaphore bounds open connections (past it, new ones wait in the kernel's
 //! backlog instead of costing memory). On shutdown the loop stops accepting, every
 //! connection is asked to finish its request in flight and close, and after `--grace` the
@@ -118,15 +119,35 @@ pub async fn serve(
                 req.extensions_mut().insert(ConnectInfo(peer));
                 req
             });
-        let conn = builder
-            .serve_connection_with_upgrades(TokioIo::new(stream), TowerToHyperService::new(svc))
-            .into_owned();
-        let conn = graceful.watch(conn);
         let metrics = metrics.clone();
+        let builder = Arc::clone(&builder);
+        let watcher = graceful.watcher();
+        let shutdown = shutdown.clone();
+        let first_byte = options.header_timeout;
         metrics.add_connections(1);
         tokio::spawn(async move {
-            if let Err(e) = conn.await {
-                tracing::debug!(%peer, error = %e, "connection ended with an error");
+            // hyper's header timeout starts at a request's first byte, so a client that
+            // connects and sends nothing would hold its slot forever: it gets the same
+            // time to send its first byte, then the connection is closed.
+            let mut probe = [0u8; 1];
+            let arrived = tokio::select! {
+                r = tokio::time::timeout(first_byte, stream.peek(&mut probe)) => {
+                    matches!(r, Ok(Ok(n)) if n > 0)
+                }
+                () = shutdown.cancelled() => false,
+            };
+            if arrived {
+                let conn = builder
+                    .serve_connection_with_upgrades(
+                        TokioIo::new(stream),
+                        TowerToHyperService::new(svc),
+                    )
+                    .into_owned();
+                if let Err(e) = watcher.watch(conn).await {
+                    tracing::debug!(%peer, error = %e, "connection ended with an error");
+                }
+            } else {
+                tracing::debug!(%peer, "closed a connection that sent nothing");
             }
             metrics.add_connections(-1);
             drop(slot);

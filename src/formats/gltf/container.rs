@@ -172,7 +172,12 @@ pub(super) fn parse(container: &Container<'_>) -> Result<json::Root, GltfError> 
     json::Root::from_slice(container.json).map_err(|e| json_error(e, container.is_glb))
 }
 
-/// Every buffer's bytes, cut to its declared `byteLength`.
+/// Every buffer's bytes, exactly its declared `byteLength`.
+///
+/// A `data:` URI must decode to exactly `byteLength` bytes; its decoded size is known from
+/// the payload's length, so one that cannot match is refused before anything is decoded (a
+/// file declaring 36 bytes must not make the loader decode gigabytes). A GLB `BIN` chunk may
+/// exceed `byteLength` only by its padding of at most 3 bytes.
 pub(super) fn resolve_buffers<'a>(
     root: &json::Root,
     bin: Option<&'a [u8]>,
@@ -187,6 +192,15 @@ pub(super) fn resolve_buffers<'a>(
             None => return Err(GltfError::NoBufferData { buffer: i }),
             Some(uri) => {
                 if let Some(rest) = uri.strip_prefix("data:") {
+                    let decoded_len = data_uri_decoded_len(rest)
+                        .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?;
+                    if decoded_len != declared {
+                        return Err(GltfError::DataUriLength {
+                            buffer: i,
+                            declared,
+                            actual: decoded_len,
+                        });
+                    }
                     Cow::Owned(
                         decode_data_uri(rest)
                             .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?,
@@ -202,6 +216,14 @@ pub(super) fn resolve_buffers<'a>(
                 declared,
                 actual: data.len() as u64,
             });
+        }
+        if let Cow::Borrowed(b) = &data {
+            if b.len() as u64 - declared > 3 {
+                return Err(GltfError::BinChunkTooLong {
+                    declared,
+                    actual: b.len() as u64,
+                });
+            }
         }
         // `declared <= data.len()` so this fits in usize. The GLB BIN chunk may carry up to
         // three bytes of padding past `byteLength`; views must stay within `byteLength`.
@@ -221,6 +243,9 @@ pub(super) fn resolve_buffers<'a>(
 pub(super) enum UriError {
     /// A scheme, an absolute path or a malformed escape.
     Unsupported,
+    /// A path that leaves the file's directory (a `..` component, or one that decodes to an
+    /// absolute path or a drive): refused before any file is opened.
+    Escapes,
     /// No base directory: only embedded data is allowed.
     NotAllowed,
     /// The file could not be read.
@@ -234,7 +259,10 @@ pub(super) enum UriError {
 
 /// Reads a file stored beside the `.gltf`. URIs are relative references (RFC 3986); a
 /// scheme or an absolute path is refused, and so is any file access when there is no base
-/// directory (a scene uploaded over HTTP must not read the server's files).
+/// directory (a scene uploaded over HTTP must not read the server's files). The decoded path
+/// must stay inside the directory: `..`, a root or a drive in it (also when spelled with
+/// `%2e%2e` or `%2f`) is refused without opening anything, so a file cannot make rayd read
+/// `/etc/passwd` or a neighbour's data.
 pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, UriError> {
     let has_scheme = uri
         .split_once(':')
@@ -248,6 +276,9 @@ pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8
     // Query and fragment parts are not part of the file name.
     let path_part = uri.split(['?', '#']).next().unwrap_or_default();
     let decoded = percent_decode(path_part).ok_or(UriError::Unsupported)?;
+    if !stays_inside(&decoded) {
+        return Err(UriError::Escapes);
+    }
     let path = base.join(decoded);
     std::fs::read(&path).map_err(|e| UriError::Io {
         path: path.display().to_string(),
@@ -255,10 +286,26 @@ pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8
     })
 }
 
+/// Whether the relative path `p` names something inside its base directory: only plain
+/// names and `.`, no `..`, root, drive or NUL, with `\\` counted as a separator too (a
+/// file written on Windows).
+fn stays_inside(p: &str) -> bool {
+    if p.is_empty() || p.contains('\0') {
+        return false;
+    }
+    p.split(['/', '\\'])
+        .enumerate()
+        .all(|(i, part)| part != ".." && !(i == 0 && (part.is_empty() || part.contains(':'))))
+}
+
 /// [`read_relative`] for buffer `buffer`, with the buffer errors.
 fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
     read_relative(uri, base_dir).map_err(|e| match e {
         UriError::Unsupported => GltfError::UnsupportedUri {
+            buffer,
+            uri: uri.to_string(),
+        },
+        UriError::Escapes => GltfError::UriEscapes {
             buffer,
             uri: uri.to_string(),
         },
@@ -308,6 +355,44 @@ pub(super) fn decode_data_uri(rest: &str) -> Result<Vec<u8>, String> {
     base64_decode(payload.as_bytes())
 }
 
+/// The number of bytes the part of a data URI after `data:` decodes to, from the payload's
+/// length alone (the characters are checked when it is decoded).
+pub(super) fn data_uri_decoded_len(rest: &str) -> Result<u64, String> {
+    let Some((header, payload)) = rest.split_once(',') else {
+        return Err("the data URI has no ',' before its payload".to_string());
+    };
+    if !header.split(';').any(|p| p == "base64") {
+        return Err(format!(
+            "only base64 data URIs are supported (header is {header:?})"
+        ));
+    }
+    let b = payload.as_bytes();
+    let trimmed = match b {
+        [rest @ .., b'=', b'='] => rest,
+        [rest @ .., b'='] => rest,
+        _ => b,
+    };
+    // A malformed payload is reported as such, not as a length that disagrees; checking
+    // the characters allocates nothing.
+    if let Some(k) = trimmed
+        .iter()
+        .position(|&c| !(c.is_ascii_alphanumeric() || c == b'+' || c == b'/'))
+    {
+        return Err(format!(
+            "invalid base64 character {:?} at payload offset {k}",
+            trimmed[k] as char
+        ));
+    }
+    let n = trimmed.len() as u64;
+    if n % 4 == 1 {
+        return Err(format!(
+            "base64 payload has an impossible length ({} characters)",
+            b.len()
+        ));
+    }
+    Ok(n / 4 * 3 + (n % 4).saturating_sub(1))
+}
+
 /// Standard base64 (RFC 4648 §4), padding optional, no whitespace.
 fn base64_decode(input: &[u8]) -> Result<Vec<u8>, String> {
     fn value(c: u8) -> Option<u32> {
@@ -353,6 +438,85 @@ fn base64_decode(input: &[u8]) -> Result<Vec<u8>, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn paths_that_leave_the_directory_are_refused() {
+        for inside in [
+            "a.bin",
+            "./a.bin",
+            "sub/a.bin",
+            "sub//a.bin",
+            "a..b.bin",
+            "..a",
+        ] {
+            assert!(stays_inside(inside), "{inside}");
+        }
+        for outside in [
+            "../a.bin",
+            "sub/../../a.bin",
+            "..",
+            "/etc/passwd",
+            "\\\\server\\share",
+            "..\\a.bin",
+            "C:/x",
+            "C:",
+            "a\0b",
+            "",
+        ] {
+            assert!(!stays_inside(outside), "{outside}");
+        }
+        // Percent-encoded dots and slashes are decoded before the check.
+        let dir = std::env::temp_dir();
+        for uri in [
+            "%2e%2e/a.bin",
+            "%2E%2E%2Fa.bin",
+            "%2Fetc%2Fpasswd",
+            "sub%2F..%2F..%2Fx",
+        ] {
+            assert!(
+                matches!(read_relative(uri, Some(&dir)), Err(UriError::Escapes)),
+                "{uri}"
+            );
+        }
+    }
+
+    #[test]
+    fn data_uri_length_is_known_before_decoding() {
+        for bytes in [&b""[..], b"f", b"fo", b"foo", b"foob", b"fooba", b"foobar"] {
+            for padded in [true, false] {
+                let mut text = base64_encode(bytes);
+                if !padded {
+                    text = text.trim_end_matches('=').to_string();
+                }
+                let uri = format!("application/octet-stream;base64,{text}");
+                assert_eq!(
+                    data_uri_decoded_len(&uri).unwrap(),
+                    decode_data_uri(&uri).unwrap().len() as u64,
+                    "{text}"
+                );
+            }
+        }
+        assert!(data_uri_decoded_len("text/plain,abc").is_err());
+        assert!(data_uri_decoded_len(";base64,A").is_err());
+    }
+
+    fn base64_encode(b: &[u8]) -> String {
+        const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut out = String::new();
+        for c in b.chunks(3) {
+            let n = (u32::from(c[0]) << 16)
+                | (u32::from(*c.get(1).unwrap_or(&0)) << 8)
+                | u32::from(*c.get(2).unwrap_or(&0));
+            for k in 0..4 {
+                if k <= c.len() {
+                    out.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+                } else {
+                    out.push('=');
+                }
+            }
+        }
+        out
+    }
 
     #[test]
     fn base64_round_trips() {

@@ -144,6 +144,9 @@ fn image(
                     UriError::Unsupported => bad(format!(
                         "URI {uri:?} is not supported (only data: URIs and relative paths)"
                     )),
+                    UriError::Escapes => bad(format!(
+                        "URI {uri:?} leaves the file's directory (`..`, a root or a drive): refused"
+                    )),
                     UriError::NotAllowed => bad(format!(
                         "refers to external file {uri:?}, but only embedded images are allowed here"
                     )),

@@ -128,6 +128,33 @@ pub enum GltfError {
         /// The URI.
         uri: String,
     },
+    /// A buffer's URI is a relative path that leaves the file's directory (`..`, or one that
+    /// decodes to a root or a drive); nothing was opened.
+    #[error("buffer {buffer}: URI {uri:?} leaves the file's directory (`..`, a root or a drive): refused")]
+    UriEscapes {
+        /// Buffer index.
+        buffer: usize,
+        /// The URI.
+        uri: String,
+    },
+    /// A buffer's `data:` URI decodes to another number of bytes than its `byteLength`.
+    #[error("buffer {buffer}: its data: URI decodes to {actual} bytes but byteLength is {declared} (they must be equal)")]
+    DataUriLength {
+        /// Buffer index.
+        buffer: usize,
+        /// `byteLength`.
+        declared: u64,
+        /// Bytes the URI decodes to.
+        actual: u64,
+    },
+    /// The GLB `BIN` chunk is longer than buffer 0's `byteLength` plus 3 bytes of padding.
+    #[error("GLB BIN chunk has {actual} bytes but buffer 0's byteLength is {declared} (at most 3 bytes of padding may follow)")]
+    BinChunkTooLong {
+        /// `byteLength`.
+        declared: u64,
+        /// The chunk's length.
+        actual: u64,
+    },
     /// A buffer is stored in a separate file, but no directory was given to find it in
     /// (e.g. a `.gltf` uploaded on its own): only embedded buffers are allowed.
     #[error("buffer {buffer} refers to external file {uri:?}, but only embedded buffers are allowed here")]
@@ -407,12 +434,13 @@ pub enum GltfError {
         /// `u32::MAX`.
         limit: u64,
     },
-    /// The scene would have more than [`MAX_TRIANGLES`] triangles.
+    /// The scene would have more triangles than allowed ([`MAX_TRIANGLES`], or the
+    /// service's `--max-triangles`).
     #[error("the scene would have {count} triangles, more than the limit of {limit}")]
     TooManyTriangles {
         /// Triangles the document asks for.
         count: u64,
-        /// [`MAX_TRIANGLES`].
+        /// The limit.
         limit: u64,
     },
 }
@@ -488,6 +516,21 @@ pub fn load_with(
     options: &LoadOptions,
     parts: Parts,
 ) -> Result<Scene, GltfError> {
+    load_limited(bytes, base_dir, options, parts, MAX_TRIANGLES)
+}
+
+/// [`load_with`] refusing scenes of more than `max_triangles` triangles (at most
+/// [`MAX_TRIANGLES`]), counted from the document before any is placed: the service's
+/// `--max-triangles`, so that a small upload whose nodes instance one mesh many times cannot
+/// make the server allocate gigabytes.
+pub fn load_limited(
+    bytes: &[u8],
+    base_dir: Option<&Path>,
+    options: &LoadOptions,
+    parts: Parts,
+    max_triangles: u64,
+) -> Result<Scene, GltfError> {
+    let max_triangles = max_triangles.min(MAX_TRIANGLES);
     if let Some(t) = options.time.filter(|t| !t.is_finite()) {
         return Err(GltfError::BadTime(t));
     }
@@ -545,10 +588,10 @@ pub fn load_with(
             total = total.saturating_add(count);
         }
     }
-    if total > MAX_TRIANGLES {
+    if total > max_triangles {
         return Err(GltfError::TooManyTriangles {
             count: total,
-            limit: MAX_TRIANGLES,
+            limit: max_triangles,
         });
     }
 
