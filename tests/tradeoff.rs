@@ -67,11 +67,15 @@ fn error_falls_as_one_over_root_spp() {
         })
         .collect();
     let slope = log_log_slope(&points).unwrap();
-    // The reference's own noise (1/32 of the variance at 64 spp) flattens the slope by
-    // under 0.01; a biased estimator would flatten it far more.
+    // Monte Carlo error falls as spp^-1/2; the pixel samples are stratified (shifted
+    // Hammersley), which makes the pixel-area part of the integral converge faster, up to
+    // spp^-3/4 at edges (a stratified estimator's variance over a discontinuity falls as
+    // N^-3/2), while the bounce directions stay plain Monte Carlo. So the slope lies between
+    // -3/4 and -1/2, within a tolerance. The reference's own noise (1/32 of the variance at
+    // 64 spp) flattens it by under 0.01; a biased estimator would flatten it far more.
     assert!(
-        (slope + 0.5).abs() < 0.1,
-        "log-log slope of RMSE against spp is {slope:.3}, not −0.5: {points:?}"
+        (-0.85..=-0.4).contains(&slope),
+        "log-log slope of RMSE against spp is {slope:.3}, not in [-3/4, -1/2] ± 0.1: {points:?}"
     );
     // And the error does fall at every step.
     assert!(points.windows(2).all(|w| w[1].1 < w[0].1), "{points:?}");
