@@ -18,21 +18,10 @@ use rayd::formats::{load_scene_with, Parts};
 use rayd::render::camera::{CameraChoice, ViewCamera};
 use rayd::render::image::{encode, ImageFormat};
 use rayd::render::surface::Surfaces;
-use rayd::render::{render, Integrator, RenderOptions, Waves};
+use rayd::render::{render, Integrator, RenderOptions};
 
-struct AllAtOnce;
-
-impl Waves for AllAtOnce {
-    type Error = std::convert::Infallible;
-    fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
-        wave();
-        Ok(())
-    }
-    fn wave_seconds(&self) -> f64 {
-        f64::INFINITY
-    }
-    fn progress(&self, _fraction: f64) {}
-}
+mod common;
+use common::AllAtOnce;
 
 /// Largest mean absolute difference over all channels, in 8-bit steps.
 const MEAN_TOLERANCE: f64 = 1.5;

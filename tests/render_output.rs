@@ -12,22 +12,10 @@ use rayd::geometry::Triangle;
 use rayd::render::camera::{CameraChoice, ViewCamera};
 use rayd::render::image::encode_exr;
 use rayd::render::surface::{PunctualLight, Surfaces};
-use rayd::render::{render, AovSet, Image, Integrator, RenderOptions, Waves};
+use rayd::render::{render, AovSet, Image, Integrator, RenderOptions};
 
-/// Runs every wave at once, on the calling thread's pool.
-struct AllAtOnce;
-
-impl Waves for AllAtOnce {
-    type Error = std::convert::Infallible;
-    fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
-        wave();
-        Ok(())
-    }
-    fn wave_seconds(&self) -> f64 {
-        f64::INFINITY
-    }
-    fn progress(&self, _fraction: f64) {}
-}
+mod common;
+use common::AllAtOnce;
 
 fn tri(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> Triangle {
     Triangle { v: [a, b, c] }

@@ -78,16 +78,10 @@ pub enum Axis {
 }
 
 impl Axis {
-    /// Every axis a user may ask for, in ladder order.
-    pub const ALL: [Axis; 7] = [
-        Axis::Spp,
-        Axis::Bounces,
-        Axis::Roulette,
-        Axis::Precision,
-        Axis::Build,
-        Axis::Accel,
-        Axis::Dacrt,
-    ];
+    /// Every axis a user may ask for, in ladder order: all but the base itself.
+    pub fn walkable() -> &'static [Axis] {
+        &<Axis as crate::names::Spelled>::ALL[1..]
+    }
 }
 
 crate::spelled!(
@@ -149,15 +143,12 @@ impl Setup {
             reference_seed: base.seed.wrapping_add(0x9e37_79b9_7f4a_7c15),
             spp: vec![1, 2, 4, 8, 16, 32, 64],
             bounces: vec![0, 1, 2, 3, 4, 6, 8],
-            accels: vec![
-                AccelKind::Mbvh8,
-                AccelKind::Mbvh4,
-                AccelKind::Bvh2,
-                AccelKind::Dacrt,
-                AccelKind::DacrtSampled,
-                AccelKind::Embree,
-            ],
-            axes: Axis::ALL.to_vec(),
+            // Every named core but the brute-force reference.
+            accels: AccelKind::ALL
+                .into_iter()
+                .filter(|k| !matches!(k, AccelKind::Auto | AccelKind::Brute))
+                .collect(),
+            axes: Axis::walkable().to_vec(),
         }
     }
 }

@@ -765,6 +765,18 @@ impl Ctx<'_> {
         Ok(())
     }
 
+    /// Submits a render job with `body` and returns its id; `None` past the run's end.
+    fn submit_render(&self, kind: Kind, scene: &str, body: &str) -> Result<Option<String>, String> {
+        let path = format!("/v1/scenes/{scene}/render");
+        let Some(a) = self.answer(kind, "POST", &path, "application/json", body.as_bytes())? else {
+            return Ok(None);
+        };
+        if a.status != 202 {
+            return Err(format!("POST {path}: {}", a.describe()));
+        }
+        Ok(Some(a.json()["id"].as_str().unwrap_or("").to_string()))
+    }
+
     /// Polls a job until it ends; `None` past the run's end.
     fn wait_job(&self, kind: Kind, id: &str) -> Result<Option<serde_json::Value>, String> {
         let path = format!("/v1/jobs/{id}");
@@ -844,16 +856,9 @@ impl Ctx<'_> {
             }
             Kind::Render => {
                 let t0 = Instant::now();
-                let path = format!("/v1/scenes/{scene}/render");
-                let Some(a) =
-                    self.answer(kind, "POST", &path, "application/json", RENDER.as_bytes())?
-                else {
+                let Some(id) = self.submit_render(kind, scene, RENDER)? else {
                     return Ok(());
                 };
-                if a.status != 202 {
-                    return Err(format!("POST {path}: {}", a.describe()));
-                }
-                let id = a.json()["id"].as_str().unwrap_or("").to_string();
                 let Some(j) = self.wait_job(kind, &id)? else {
                     return Ok(());
                 };
@@ -880,16 +885,9 @@ impl Ctx<'_> {
             }
             Kind::Cancel => {
                 let t0 = Instant::now();
-                let path = format!("/v1/scenes/{scene}/render");
-                let Some(a) =
-                    self.answer(kind, "POST", &path, "application/json", CANCEL.as_bytes())?
-                else {
+                let Some(id) = self.submit_render(kind, scene, CANCEL)? else {
                     return Ok(());
                 };
-                if a.status != 202 {
-                    return Err(format!("POST {path}: {}", a.describe()));
-                }
-                let id = a.json()["id"].as_str().unwrap_or("").to_string();
                 std::thread::sleep(Duration::from_millis(rng.below(200)));
                 let jpath = format!("/v1/jobs/{id}");
                 let Some(d) = self.answer(kind, "DELETE", &jpath, "", &[])? else {

@@ -4,6 +4,22 @@
 
 use rayd::geometry::{Hit, Triangle};
 
+/// A render's waves all run at once, on the calling thread's pool: the renderer's tests need
+/// no scheduler, cancellation or progress.
+pub struct AllAtOnce;
+
+impl rayd::render::Waves for AllAtOnce {
+    type Error = std::convert::Infallible;
+    fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
+        wave();
+        Ok(())
+    }
+    fn wave_seconds(&self) -> f64 {
+        f64::INFINITY
+    }
+    fn progress(&self, _fraction: f64) {}
+}
+
 /// SplitMix64: a small seeded generator, so that every test draws the same cases.
 pub struct Rng(pub u64);
 
