@@ -7,7 +7,7 @@
 //! answer the same after it; the only failures allowed are `503`s with `Retry-After` and
 //! requests broken by a restart, both retried. The server's RSS is sampled every 250 ms
 //! and, after the warm-up (the first quarter, at least 10 s), held to 1.5 × the warm-up
-//! peak + 64 MiB, with `--cache-bytes` at 64 MiB and small traces choosing among version 1
+//! peak + 64 MiB, with `--cache-bytes` at 64 MiB, `--geometry-bytes` at 32 MiB and small traces choosing among version 1
 //! and the 8 latest versions, so that the working set does not grow with the run. `RAYD_SOAK_CSV=FILE` writes the RSS samples for a plot
 //! (`scripts/plot_soak.py`); the driver is `tests/common/load.rs`, which the load script
 //! shares.
@@ -47,12 +47,18 @@ fn soak() {
         large_rays: 1 << 16,
         serve_args: Vec::new(),
     };
-    // A small structure cache, so that its budget, not the machine, bounds what it holds.
+    // Small caches (structures and evaluated geometry), so that their budgets, not the
+    // run's length, bound what they hold: every geometry update adds an evaluated version.
     let server = ServerProc::start(
         &plan.bin,
         &dir.path().join("data"),
         plan.threads,
-        &["--cache-bytes".to_string(), (64u64 << 20).to_string()],
+        &[
+            "--cache-bytes".to_string(),
+            (64u64 << 20).to_string(),
+            "--geometry-bytes".to_string(),
+            (32u64 << 20).to_string(),
+        ],
     )
     .expect("rayd serve starts");
     let fixture = load::Fixture::prepare(&plan, &server, dir.path()).expect("the fixture");

@@ -214,6 +214,8 @@ fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -
                 } else {
                     Geometry::New
                 },
+                // Each measured frame stands alone: "new" rebuilds every frame.
+                frames: 1,
             };
             let pick = auto::choose(&job);
             let Some(p) = measured.iter().find(|f| f.accel == pick.name()) else {

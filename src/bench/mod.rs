@@ -412,6 +412,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         threads,
                         quality: config.build,
                         geometry: crate::accel::auto::Geometry::New,
+                        frames: 1,
                     });
                     let options = BuildOptions { threads, ..options };
                     let mut build_times = Vec::new();

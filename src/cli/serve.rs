@@ -64,6 +64,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
             observer: Some(Arc::new(state.metrics.clone())),
             callbacks: callbacks.map(|c| Arc::new(c) as Arc<dyn crate::app::CallbackSender>),
             max_triangles: config.max_triangles,
+            geometry_bytes: config.geometry_bytes as usize,
             ..Default::default()
         },
     );

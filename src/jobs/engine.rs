@@ -193,8 +193,10 @@ impl Engine {
         }
     }
 
-    /// Resolves `accel` for a job of `rays` rays in `batches` trace calls over `geometry`:
-    /// `auto` asks the cost model, told what the cache holds.
+    /// Resolves `accel` for a job of `rays` rays in `batches` trace calls over `geometry`,
+    /// the first of `frames` frames over moving positions of its triangles (1: a single
+    /// one): `auto` asks the cost model, told what the cache holds.
+    #[allow(clippy::too_many_arguments)]
     pub fn resolve(
         &self,
         accel: AccelKind,
@@ -203,6 +205,7 @@ impl Engine {
         precision: Precision,
         rays: usize,
         batches: usize,
+        frames: usize,
     ) -> AccelKind {
         let mbvh = self.key(geometry, AccelKind::Mbvh8, quality, precision);
         accel.resolve(&auto::Job {
@@ -212,6 +215,7 @@ impl Engine {
             threads: self.threads(),
             quality,
             geometry: self.known(&mbvh),
+            frames,
         })
     }
 
@@ -253,6 +257,7 @@ impl Engine {
                 threads: self.threads(),
                 quality,
                 geometry,
+                frames: 1,
             };
             let refit = auto::predict(AccelKind::Mbvh8, &job(Known::Refittable));
             let build = auto::predict(AccelKind::Mbvh8, &job(Known::New));

@@ -311,6 +311,7 @@ impl Engine {
                 request.precision,
                 rays,
                 batches,
+                times.len() - k,
             );
             let prepared = control.step(|| {
                 self.structure(

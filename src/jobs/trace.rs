@@ -322,6 +322,7 @@ impl Engine {
             request.precision,
             rays,
             1,
+            1,
         )
     }
 

@@ -337,6 +337,7 @@ pub fn render<W: Waves + ?Sized>(
     } else {
         WAVE_PIXELS
     };
+    let mut scratch = Scratch::default();
     let mut start = 0;
     while start < n {
         let end = (start + wave_pixels).min(n);
@@ -353,6 +354,7 @@ pub fn render<W: Waves + ?Sized>(
                 },
             };
             let stats = &mut stats;
+            let scratch = &mut scratch;
             waves.run_wave(&mut || {
                 render_wave(
                     Frame {
@@ -366,6 +368,7 @@ pub fn render<W: Waves + ?Sized>(
                     },
                     (start, end, s),
                     &mut out,
+                    scratch,
                     stats,
                 )
             })?;
@@ -414,6 +417,29 @@ struct WaveOut<'a> {
     covered: &'a mut [u32],
     /// The primary hits, on sample 0 when AOVs are asked for.
     primary: Option<&'a mut [Primary]>,
+}
+
+/// Buffers that every wave of a frame reuses. A wave's paths, rays, hits and shading
+/// results are tens of MiB; allocated afresh for each wave and bounce, each of them is
+/// page-faulted in and cleared by the kernel again (a sixth of a path frame's time, by
+/// `perf`), so they live here across the frame and only grow.
+#[derive(Default)]
+struct Scratch {
+    paths: Vec<PathState>,
+    steps: Vec<Step>,
+    trace: TraceBufs,
+    shadow_rays: Vec<Ray>,
+    shadow_gain: Vec<Vec3>,
+    shadow_pixel: Vec<usize>,
+}
+
+/// The rays, hits and indices of one batch sent to the intersector.
+#[derive(Default)]
+struct TraceBufs {
+    rays: Vec<Ray>,
+    hits: Vec<Hit>,
+    idx: Vec<usize>,
+    occluded: Vec<u8>,
 }
 
 /// What every wave of a frame reads.
@@ -465,6 +491,7 @@ fn render_wave(
     frame: Frame<'_>,
     (start, end, s): (usize, usize, u32),
     wave: &mut WaveOut<'_>,
+    scratch: &mut Scratch,
     stats: &mut RenderStats,
 ) {
     let Frame {
@@ -478,22 +505,28 @@ fn render_wave(
     let w = options.width;
     let h = options.height;
     let spp = options.spp.max(1);
-    let mut paths: Vec<PathState> = (start..end)
-        .enumerate()
-        .map(|(i, p)| {
-            let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-            let (jx, jy) = pixel_sample(options.seed, p, s, spp);
-            let (x, y) = ((p % w as usize) as f64, (p / w as usize) as f64);
-            let ray = camera.ray(x + jx, y + jy, w, h);
-            PathState::new(i, ray, rng)
-        })
-        .collect();
-    trace_closest(frame, &mut paths, stats);
-    for (c, p) in wave.covered.iter_mut().zip(&paths) {
+    let Scratch {
+        paths,
+        steps,
+        trace,
+        shadow_rays,
+        shadow_gain,
+        shadow_pixel,
+    } = scratch;
+    paths.clear();
+    paths.par_extend((start..end).into_par_iter().map(|p| {
+        let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
+        let (jx, jy) = pixel_sample(options.seed, p, s, spp);
+        let (x, y) = ((p % w as usize) as f64, (p / w as usize) as f64);
+        let ray = camera.ray(x + jx, y + jy, w, h);
+        PathState::new(p - start, ray, rng)
+    }));
+    trace_closest(frame, paths, trace, stats);
+    for (c, p) in wave.covered.iter_mut().zip(paths.iter()) {
         *c += p.hit.is_hit() as u32;
     }
     if let Some(primary) = wave.primary.as_deref_mut() {
-        for (q, p) in primary.iter_mut().zip(&paths) {
+        primary.par_iter_mut().zip(&paths[..]).for_each(|(q, p)| {
             let hit = &p.hit;
             *q = if hit.is_hit() {
                 let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(p.ray.dir));
@@ -506,12 +539,12 @@ fn render_wave(
             } else {
                 Primary::MISS
             };
-        }
+        });
     }
     let out = &mut *wave.radiance;
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
-            for (o, p) in out.iter_mut().zip(&paths) {
+            out.par_iter_mut().zip(&paths[..]).for_each(|(o, p)| {
                 let (r, hit) = (&p.ray, &p.hit);
                 let c = if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
@@ -525,7 +558,7 @@ fn render_wave(
                     BACKGROUND
                 };
                 add(o, c, 1.0);
-            }
+            });
         }
         Integrator::Ao => {
             let dist = scene_diagonal / 8.0;
@@ -548,12 +581,15 @@ fn render_wave(
                 }
             }
             let mut open = vec![Vec3::ONE; ao_rays.len()];
-            trace_shadows(frame, &mut ao_rays, &mut open, stats);
+            trace_shadows(frame, &mut ao_rays, &mut open, trace, stats);
             for (&i, k) in idx.iter().zip(&open) {
                 add(&mut out[i], k.to_array(), 1.0);
             }
         }
-        Integrator::Path => trace_paths(frame, paths, out, stats),
+        Integrator::Path => {
+            let shadows = (&mut *shadow_rays, &mut *shadow_gain, &mut *shadow_pixel);
+            trace_paths(frame, paths, out, steps, trace, shadows, stats)
+        }
     }
 }
 
@@ -578,6 +614,8 @@ struct PathState {
     prev_pdf: f32,
     /// Whether `hit` still awaits its presence test (alpha).
     pending: bool,
+    /// Whether the path goes on after the vertex just shaded.
+    alive: bool,
 }
 
 impl PathState {
@@ -593,6 +631,7 @@ impl PathState {
             prev_ns: Vec3::ZERO,
             prev_pdf: 0.0,
             pending: false,
+            alive: true,
         }
     }
 }
@@ -614,19 +653,27 @@ fn beyond(triangles: &[Triangle], ray: &Ray, hit: &Hit) -> Ray {
 /// away (or passed by the stochastic `BLEND` test, with probability 1 − alpha from the
 /// path's own stream) continue behind it in another batch, until none is left. The cores
 /// know nothing of materials; only the waves do.
-fn trace_closest(frame: Frame<'_>, paths: &mut [PathState], stats: &mut RenderStats) {
-    let rays: Vec<Ray> = paths.iter().map(|p| p.ray).collect();
-    let mut hits = vec![Hit::MISS; rays.len()];
-    frame.trace(&rays, &mut hits, stats);
-    for (p, h) in paths.iter_mut().zip(hits) {
-        p.hit = h;
+fn trace_closest(
+    frame: Frame<'_>,
+    paths: &mut [PathState],
+    bufs: &mut TraceBufs,
+    stats: &mut RenderStats,
+) {
+    let TraceBufs {
+        rays, hits, idx, ..
+    } = bufs;
+    rays.clear();
+    rays.par_extend(paths.par_iter().map(|p| p.ray));
+    hits.clear();
+    hits.resize(rays.len(), Hit::MISS);
+    frame.trace(rays, hits, stats);
+    paths.par_iter_mut().zip(&hits[..]).for_each(|(p, h)| {
+        p.hit = *h;
         p.pending = h.is_hit();
-    }
+    });
     if !frame.surfaces.has_alpha() {
         return;
     }
-    let mut rays = Vec::new();
-    let mut idx = Vec::new();
     for _ in 0..MAX_LAYERS {
         paths.par_iter_mut().filter(|p| p.pending).for_each(|p| {
             let passes = match frame.surfaces.presence(&p.hit) {
@@ -650,10 +697,11 @@ fn trace_closest(frame: Frame<'_>, paths: &mut [PathState], stats: &mut RenderSt
         if rays.is_empty() {
             return;
         }
-        let mut hits = vec![Hit::MISS; rays.len()];
-        frame.trace(&rays, &mut hits, stats);
-        for (&i, h) in idx.iter().zip(hits) {
-            paths[i].hit = h;
+        hits.clear();
+        hits.resize(rays.len(), Hit::MISS);
+        frame.trace(rays, hits, stats);
+        for (&i, h) in idx.iter().zip(hits.iter()) {
+            paths[i].hit = *h;
             paths[i].pending = h.is_hit();
         }
     }
@@ -667,21 +715,29 @@ fn trace_closest(frame: Frame<'_>, paths: &mut [PathState], stats: &mut RenderSt
 /// With them, closest hits in batches, as [`trace_closest`] does, but deterministic: a cut
 /// surface lets the ray on, a `BLEND` one multiplies the gain by 1 − alpha (the expected
 /// value of the stochastic test, without its noise), and an opaque one stops it.
-fn trace_shadows(frame: Frame<'_>, rays: &mut [Ray], gains: &mut [Vec3], stats: &mut RenderStats) {
+fn trace_shadows(
+    frame: Frame<'_>,
+    rays: &mut [Ray],
+    gains: &mut [Vec3],
+    bufs: &mut TraceBufs,
+    stats: &mut RenderStats,
+) {
     if rays.is_empty() {
         return;
     }
     if !frame.surfaces.has_alpha() {
-        let mut occluded = vec![0u8; rays.len()];
+        let occluded = &mut bufs.occluded;
+        occluded.clear();
+        occluded.resize(rays.len(), 0);
         let t0 = std::time::Instant::now();
-        frame.accel.occluded(rays, &mut occluded);
+        frame.accel.occluded(rays, occluded);
         stats.trace_seconds += t0.elapsed().as_secs_f64();
         stats.rays += rays.len() as u64;
-        for (g, &o) in gains.iter_mut().zip(&occluded) {
+        gains.par_iter_mut().zip(&occluded[..]).for_each(|(g, &o)| {
             if o != 0 {
                 *g = Vec3::ZERO;
             }
-        }
+        });
         return;
     }
     let mut active: Vec<usize> = (0..rays.len()).collect();
@@ -752,59 +808,67 @@ struct Step {
 /// BRDF-sampled rays hit (emissive surfaces, the sky on a miss), and, at each scattering,
 /// by next-event estimation towards one light that [`LightSampler`] picks (a punctual
 /// light, a point on an emissive triangle or a sky direction).
+#[allow(clippy::too_many_arguments)]
 fn trace_paths(
     frame: Frame<'_>,
-    mut live: Vec<PathState>,
+    live: &mut Vec<PathState>,
     out: &mut [[f32; 3]],
+    steps: &mut Vec<Step>,
+    bufs: &mut TraceBufs,
+    (shadow_rays, shadow_gain, shadow_pixel): (&mut Vec<Ray>, &mut Vec<Vec3>, &mut Vec<usize>),
     stats: &mut RenderStats,
 ) {
     let options = frame.options;
     let sky = Vec3::from(options.sky);
-    let mut shadow_rays = Vec::new();
-    let mut shadow_gain = Vec::new();
-    let mut shadow_pixel = Vec::new();
     for bounce in 0..=options.bounces {
         // A vertex reached after `bounce` scatterings may scatter once more.
         let scatter = bounce < options.bounces;
-        let steps: Vec<Step> = live
-            .par_iter_mut()
-            .map(|p| shade_vertex(frame, p, bounce, scatter, sky))
-            .collect();
+        steps.clear();
+        steps.par_extend(
+            live.par_iter_mut()
+                .map(|p| shade_vertex(frame, p, bounce, scatter, sky)),
+        );
         shadow_rays.clear();
         shadow_gain.clear();
         shadow_pixel.clear();
-        let mut next = Vec::with_capacity(live.len());
-        for (p, step) in live.into_iter().zip(steps) {
-            add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
+        // Every path of a wave is a distinct pixel, so the order of these adds is fixed.
+        for (p, step) in live.iter().zip(steps.iter()) {
+            if step.emitted != Vec3::ZERO {
+                add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
+            }
             if let Some((ray, gain)) = step.shadow {
                 shadow_rays.push(ray);
                 shadow_gain.push(gain);
                 shadow_pixel.push(p.pixel);
             }
-            if let Some(n) = step.next {
-                next.push(PathState {
-                    ray: n.ray,
-                    throughput: n.throughput,
-                    hit: Hit::MISS,
-                    travelled: 0.0,
-                    prev_pos: n.pos,
-                    prev_ns: n.ns,
-                    prev_pdf: n.pdf,
-                    ..p
-                });
-            }
         }
-        trace_shadows(frame, &mut shadow_rays, &mut shadow_gain, stats);
-        for (&pixel, gain) in shadow_pixel.iter().zip(&shadow_gain) {
+        // Each path becomes its continuation in place, and the ended ones drop out.
+        live.par_iter_mut()
+            .zip(steps.par_iter_mut())
+            .for_each(|(p, step)| match step.next.take() {
+                Some(n) => {
+                    p.ray = n.ray;
+                    p.throughput = n.throughput;
+                    p.hit = Hit::MISS;
+                    p.travelled = 0.0;
+                    p.prev_pos = n.pos;
+                    p.prev_ns = n.ns;
+                    p.prev_pdf = n.pdf;
+                    p.alive = true;
+                }
+                None => p.alive = false,
+            });
+        live.retain(|p| p.alive);
+        trace_shadows(frame, shadow_rays, shadow_gain, bufs, stats);
+        for (&pixel, gain) in shadow_pixel.iter().zip(shadow_gain.iter()) {
             if gain.max_element() > 0.0 {
                 add(&mut out[pixel], gain.to_array(), 1.0);
             }
         }
-        if next.is_empty() {
+        if live.is_empty() {
             break;
         }
-        trace_closest(frame, &mut next, stats);
-        live = next;
+        trace_closest(frame, live, bufs, stats);
     }
 }
 

@@ -82,6 +82,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_CACHE_BYTES", default_value_t = 4 << 30)]
     pub cache_bytes: u64,
 
+    /// Bytes of evaluated geometry (a scene's positions per version and animation time)
+    /// kept in memory for reuse (1 GiB). Each `PUT .../geometry` and each new `time=`
+    /// adds an entry; the least recently used go first.
+    #[arg(long, env = "RAYD_GEOMETRY_BYTES", default_value_t = 1 << 30)]
+    pub geometry_bytes: u64,
+
     /// Bytes of request bodies held in memory at once, by all requests together (2 GiB);
     /// a request that cannot get its share in time is answered 503. At least --max-body.
     #[arg(long, env = "RAYD_MAX_INFLIGHT_BYTES", default_value_t = 2 << 30)]

@@ -381,9 +381,10 @@ class Scene:
         trace route's parameters, the server's defaults when None. Returns :class:`Hits`.
         """
         params = self._trace_params(query, hit, accel, version, time, build, precision, invalid)
-        body = formats.encode_rays(origins, directions, tmin, tmax)
-        n = (len(body) - formats.HEADER_BYTES) // formats.RAY_DTYPE.itemsize
-        return self._trace_body(body, n, params)
+        # Encoded a segment at a time as it is sent, so that the server's tracing of the
+        # first segments overlaps the encoding of the rest (formats.RaySegments).
+        body = formats.RaySegments(origins, directions, tmin, tmax)
+        return self._trace_body(body, body.count, params)
 
     def trace_ray1(self, body, *, hit: str = "t_prim_uv", **params) -> Hits:
         """Traces a ready RAY1 body (bytes of a ``.ray`` file) as it is; ``params`` as

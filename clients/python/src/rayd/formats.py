@@ -81,13 +81,8 @@ def _check(body, magic: int, record_bytes_of, kind: str) -> tuple[int, int]:
     return fmt, count
 
 
-def encode_rays(origins, directions, tmin=0.0, tmax=np.inf) -> bytearray:
-    """A RAY1 body for rays ``origins + t * directions``, ``tmin <= t <= tmax``.
-
-    ``origins`` and ``directions`` are ``(N, 3)`` (either may be one ``(3,)`` point or vector
-    for all rays); ``tmin`` and ``tmax`` are scalars or ``(N,)``. Values are converted to
-    float32 as they are written into the body, which is the one copy made.
-    """
+def _ray_arrays(origins, directions, tmin, tmax):
+    """The four inputs as float32 arrays, checked, and the ray count."""
     o = np.asarray(origins, dtype=np.float32)
     d = np.asarray(directions, dtype=np.float32)
     lo = np.asarray(tmin, dtype=np.float32)
@@ -106,14 +101,68 @@ def encode_rays(origins, directions, tmin=0.0, tmax=np.inf) -> bytearray:
             f"tmin {lo.shape}, tmax {hi.shape}"
         ) from None
     n = count[0] if count else 1
+    return o, d, lo, hi, n
+
+
+def _fill_rays(rec, o, d, lo, hi, start, stop):
+    """Writes rays ``start..stop`` of the inputs (broadcast) into the records ``rec``."""
+
+    def part(a, vector):
+        # One value (or vector) for all rays stays as it is and broadcasts.
+        return a[start:stop] if a.ndim == (2 if vector else 1) else a
+
+    rec["origin"] = part(o, True)
+    rec["tmin"] = part(lo, False)
+    rec["direction"] = part(d, True)
+    rec["tmax"] = part(hi, False)
+
+
+def encode_rays(origins, directions, tmin=0.0, tmax=np.inf) -> bytearray:
+    """A RAY1 body for rays ``origins + t * directions``, ``tmin <= t <= tmax``.
+
+    ``origins`` and ``directions`` are ``(N, 3)`` (either may be one ``(3,)`` point or vector
+    for all rays); ``tmin`` and ``tmax`` are scalars or ``(N,)``. Values are converted to
+    float32 as they are written into the body, which is the one copy made.
+    """
+    o, d, lo, hi, n = _ray_arrays(origins, directions, tmin, tmax)
     body = bytearray(HEADER_BYTES + n * RAY_DTYPE.itemsize)
     HEADER.pack_into(body, 0, RAY1_MAGIC, VERSION, 0, n)
     rec = np.frombuffer(body, dtype=RAY_DTYPE, count=n, offset=HEADER_BYTES)
-    rec["origin"] = o
-    rec["tmin"] = lo
-    rec["direction"] = d
-    rec["tmax"] = hi
+    _fill_rays(rec, o, d, lo, hi, 0, n)
     return body
+
+
+class RaySegments:
+    """A RAY1 body encoded a segment at a time while it is sent: iterating gives the
+    header and then the records of ``segment`` rays at a time, each written into one
+    reused buffer just before it goes out, and ``len()`` is the whole body's length (so
+    an HTTP library sends it with a ``Content-Length``, not chunked).
+
+    The service traces a streamed batch as its segments arrive (``proto/service.md``), so
+    encoding the next segment here overlaps tracing the last one there, instead of the
+    whole body being encoded before its first byte leaves. The inputs are checked when
+    this is made, before anything is sent; iterating again encodes the body again (a
+    retried request).
+    """
+
+    def __init__(self, origins, directions, tmin=0.0, tmax=np.inf, segment: int = 1 << 16):
+        self._o, self._d, self._lo, self._hi, self.count = _ray_arrays(
+            origins, directions, tmin, tmax
+        )
+        self._segment = max(int(segment), 1)
+
+    def __len__(self):
+        return HEADER_BYTES + self.count * RAY_DTYPE.itemsize
+
+    def __iter__(self):
+        yield header(RAY1_MAGIC, 0, self.count)
+        rec = np.empty(min(self._segment, self.count), dtype=RAY_DTYPE)
+        for start in range(0, self.count, self._segment):
+            stop = min(start + self._segment, self.count)
+            part = rec[: stop - start]
+            _fill_rays(part, self._o, self._d, self._lo, self._hi, start, stop)
+            # The socket has taken these bytes when the next segment overwrites them.
+            yield memoryview(part).cast("B")
 
 
 def decode_rays(body) -> np.ndarray:
