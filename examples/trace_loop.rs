@@ -7,8 +7,9 @@
 //! perf record -e cpu-clock target/release/examples/trace_loop ...
 //! ```
 //!
-//! Arguments: scene, RAY1 file (of the interior view), accelerators (comma-separated; the
-//! passes alternate between them), build quality, passes,
+//! Arguments: scene, RAY1 files (of the interior view; comma-separated, each traced on the
+//! same structures built once), accelerators (comma-separated; the passes alternate between
+//! them), build quality, passes,
 //! and optionally the thread count (default 1) and the precision (default watertight). Prints the median Mray/s of each.
 
 use rayd::accel::{build, AccelKind, BuildOptions, BuildQuality, Precision, Query};
@@ -36,7 +37,6 @@ fn main() {
     }
     let scene = rayd::formats::load_scene(args[1].as_ref(), &Default::default()).unwrap();
     let view = View::new(&scene, ViewKind::Interior, &CameraChoice::Auto, 1024, 768).unwrap();
-    let rays = rayd::formats::binary::read_rays(&std::fs::read(&args[2]).unwrap()).unwrap();
     let quality = match args[4].as_str() {
         "fast" => BuildQuality::Fast,
         "sah" => BuildQuality::Sah,
@@ -68,31 +68,46 @@ fn main() {
                 .unwrap()
         })
         .collect();
-    let mut hits = vec![Hit::MISS; rays.len()];
-    // Passes alternate between the accelerators so that a noisy machine slows all alike.
-    let mut times = vec![Vec::new(); accels.len()];
-    let mut cpu = vec![Vec::new(); accels.len()];
-    for _ in 0..passes {
-        for ((a, t), c) in accels.iter().zip(&mut times).zip(&mut cpu) {
-            let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
-            pool.install(|| a.trace(&rays, Query::Closest, &mut hits));
-            t.push(t0.elapsed().as_secs_f64());
-            c.push(cpu_seconds() - c0);
+    for path in args[2].split(',') {
+        let rays = rayd::formats::binary::read_rays(&std::fs::read(path).unwrap()).unwrap();
+        if args[2].contains(',') {
+            println!("{path}:");
         }
-    }
-    let mut first = None;
-    for ((a, t), c) in accels.iter().zip(&mut times).zip(&mut cpu) {
-        t.sort_by(f64::total_cmp);
-        c.sort_by(f64::total_cmp);
-        let mray = rays.len() as f64 / t[t.len() / 2] / 1e6;
-        let mray_cpu = rays.len() as f64 / c[c.len() / 2] / 1e6;
-        let (base, base_cpu) = *first.get_or_insert((mray, mray_cpu));
-        println!(
-            "{:>8}: median {mray:.3} Mray/s (best {:.3}), {:.3}x the first; per CPU-second {mray_cpu:.3} Mray, {:.3}x",
-            a.name(),
-            rays.len() as f64 / t[0] / 1e6,
-            mray / base,
-            mray_cpu / base_cpu
-        );
+        let mut hits = vec![vec![Hit::MISS; rays.len()]; accels.len()];
+        // Passes alternate between the accelerators so that a noisy machine slows all alike.
+        let mut times = vec![Vec::new(); accels.len()];
+        let mut cpu = vec![Vec::new(); accels.len()];
+        for _ in 0..passes {
+            for (((a, t), c), h) in accels.iter().zip(&mut times).zip(&mut cpu).zip(&mut hits) {
+                let (t0, c0) = (std::time::Instant::now(), cpu_seconds());
+                pool.install(|| a.trace(&rays, Query::Closest, h));
+                t.push(t0.elapsed().as_secs_f64());
+                c.push(cpu_seconds() - c0);
+            }
+        }
+        let mut first = None;
+        for (((a, t), c), h) in accels.iter().zip(&mut times).zip(&mut cpu).zip(&hits) {
+            t.sort_by(f64::total_cmp);
+            c.sort_by(f64::total_cmp);
+            let mray = rays.len() as f64 / t[t.len() / 2] / 1e6;
+            let mray_cpu = rays.len() as f64 / c[c.len() / 2] / 1e6;
+            let (base, base_cpu) = *first.get_or_insert((mray, mray_cpu));
+            // The same checksum as scripts/tinybvh/harness.cpp prints, to compare the hits.
+            let sum = h.iter().fold(0u64, |s, h| {
+                s.wrapping_mul(1_000_003).wrapping_add(if h.is_hit() {
+                    u64::from(h.prim) + 1
+                } else {
+                    0
+                })
+            });
+            println!(
+                "{:>8}: median {mray:.3} Mray/s (best {:.3}), {:.3}x the first; per CPU-second {mray_cpu:.3} Mray, {:.3}x; hits {}, checksum {sum:016x}",
+                a.name(),
+                rays.len() as f64 / t[0] / 1e6,
+                mray / base,
+                mray_cpu / base_cpu,
+                h.iter().filter(|h| h.is_hit()).count()
+            );
+        }
     }
 }

@@ -237,7 +237,9 @@ pub type Mbvh4 = Mbvh<4>;
 
 impl<const N: usize> Mbvh<N> {
     /// The cost model of the N-wide build: K_T = K_I = 1, costs in multi-triangles, at
-    /// most 2N triangles per leaf.
+    /// most 2N triangles per leaf. For `mbvh8 --build sbvh`, K_I = 0.5, 0.7, 1.5 and 2
+    /// and leaves of at most N triangles were tried (BENCHMARKS.md §20): none was faster on
+    /// every scene and set; all stayed within the ±10% noise or lost.
     pub(super) fn cost() -> CostModel {
         CostModel::new(N as u32, 2 * N as u32, 1.0, 1.0)
     }

@@ -30,6 +30,15 @@
 //! Rejected: interleaving two or three rays per chunk (advancing each by one node or leaf
 //! in turn), to overlap their misses: 10–20% slower, the state juggling costing more than
 //! the overlap gained.
+//!
+//! Rejected (BENCHMARKS.md §20): pushing the hit children in a per-node, per-octant order
+//! precomputed from the children's entry corners (Fuetterling et al. 2017; tinybvh's
+//! `BVH8_CPU` does it with a permutation; ours was a branch-free scalar loop over the
+//! order), instead of sorting by the ray's entry distances:
+//! 14% more instructions and 10% more mispredicted branches per ray on nefertiti's primary
+//! rays (callgrind; the loop walks all N lanes, and whether the approximate order also
+//! visits more nodes was not counted); its Mray/s moved −8% to +8% by scene, within the
+//! noise, when done from 2 or from 3 hits.
 
 use super::layout::{leaf_lanes, Pack, TravNode, TravTree};
 use super::ray::SlabConsts;
