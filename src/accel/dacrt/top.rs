@@ -53,7 +53,7 @@ impl Top {
 /// Partitions `ids` (the triangles of `node`) down to nodes of fewer than `min_tris`
 /// triangles and returns the tree of partitions, or `None` when the node is not split.
 /// `rays` estimates the node's active rays; `samples` are sample rays that enter the node
-/// (empty when sampling is off).
+/// (drawn whether or not sampling is on: they also estimate the rays of each child).
 pub fn build(
     ctx: &Ctx,
     samples: &[RayRec],
@@ -63,21 +63,18 @@ pub fn build(
     min_tris: usize,
 ) -> Option<Top> {
     let t = ids.len();
-    if t < min_tris.max(ctx.opts.leaf_tris) || rays < ctx.opts.leaf_rays {
+    if t < min_tris.max(ctx.opts.leaf_tris) || rays < ctx.opts.leaf_rays || samples.is_empty() {
         return None;
     }
     let (parts, _) = choose(ctx, samples, rays, ids, node)?;
     let (ids_l, ids_r) = ids.split_at_mut(parts.mid);
     let side = |ids: &mut [u32], child: &Node| {
         let mut own = samples.to_vec();
-        let rays = if samples.is_empty() {
-            rays
-        } else {
-            let m = filter(&mut own, &FilterBox::new(&child.bounds));
-            own.truncate(m);
-            // The batch's rays scaled by the fraction of samples entering the child.
-            (rays as u64 * m as u64 / samples.len() as u64) as usize
-        };
+        let m = filter(&mut own, &FilterBox::new(&child.bounds));
+        own.truncate(m);
+        // The node's rays scaled by the fraction of its samples entering the child: a
+        // child no sample enters is left to the threads (few rays reach it, if any).
+        let rays = (rays as u64 * m as u64 / samples.len().max(1) as u64) as usize;
         build(ctx, &own, rays, ids, child, min_tris)
     };
     let (l, r) = rayon::join(|| side(ids_l, &parts.left), || side(ids_r, &parts.right));

@@ -269,7 +269,7 @@ impl Rng {
 
 /// Draws the sample rays of a node with `rays` active into `buf` (none when sampling is
 /// off or the node has too few rays); returns how many.
-pub(super) fn draw_samples(
+fn draw_samples(
     ctx: &Ctx,
     rays: &[RayRec],
     t: usize,
