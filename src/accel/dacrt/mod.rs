@@ -13,7 +13,8 @@
 //!   children, and whether a child needs its rays filtered at all ([`options::Sampling`]).
 //!
 //! Both share the same code and run on the rayon pool they are called in, with the
-//! parallel scheme of [`parallel`]. "Building" one is the per-frame precompute only, so a
+//! parallel scheme of [`parallel`] (with the top levels partitioned once for all threads,
+//! [`top`]). "Building" one is the per-frame precompute only, so a
 //! new frame (new positions for the same or other triangles) is simply a new build.
 //!
 //! Memory during a trace (T triangles, R rays): 48·T for the precompute (held between

@@ -24,7 +24,8 @@
 //! - **Ray-split forks** (the default in the fork band): the step's rays are split into
 //!   two coherent halves that traverse the same node at once (see [`fork_rays`]); each half
 //!   keeps its own front-to-back culling, at the price of partitioning the node's triangles
-//!   twice.
+//!   twice — except in the top levels, which a batch partitions once for all threads
+//!   before its first split (`top.rs`).
 //!
 //! Forks are made only when a thread is idle ([`Workers`]), so the second half is almost
 //! always taken by another thread at once.
