@@ -98,6 +98,21 @@ fn root_forks(mut o: DacrtOptions) -> DacrtOptions {
     o
 }
 
+/// Ray-split forks from the root, each half partitioning everything it reaches.
+fn root_forks_no_top(mut o: DacrtOptions) -> DacrtOptions {
+    o.parallel.fork_min_rays = 8;
+    o.parallel.top_min_tris = 0;
+    o
+}
+
+/// Ray-split forks from the root with the top levels partitioned once for all threads
+/// down to the smallest nodes (`top.rs`).
+fn shared_top(mut o: DacrtOptions) -> DacrtOptions {
+    o.parallel.fork_min_rays = 8;
+    o.parallel.top_min_tris = 2;
+    o
+}
+
 fn tris_split(mut o: DacrtOptions) -> DacrtOptions {
     o.parallel.split = ForkSplit::Tris;
     o
@@ -121,6 +136,9 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-sampled-par", forced_parallel(sampled_small), 3),
         ("dacrt-root-forks", root_forks(small_leaves), 2),
         ("dacrt-sampled-root-forks", root_forks(sampled_small), 3),
+        ("dacrt-shared-top", shared_top(small_leaves), 2),
+        ("dacrt-sampled-shared-top", shared_top(sampled_small), 3),
+        ("dacrt-no-top", root_forks_no_top(small_leaves), 2),
         (
             "dacrt-par-tris",
             tris_split(forced_parallel(small_leaves)),

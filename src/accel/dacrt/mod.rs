@@ -13,7 +13,8 @@
 //!   children, and whether a child needs its rays filtered at all ([`options::Sampling`]).
 //!
 //! Both share the same code and run on the rayon pool they are called in, with the
-//! parallel scheme of [`parallel`]. "Building" one is the per-frame precompute only, so a
+//! parallel scheme of [`parallel`] (with the top levels partitioned once for all threads,
+//! [`top`]). "Building" one is the per-frame precompute only, so a
 //! new frame (new positions for the same or other triangles) is simply a new build.
 //!
 //! Memory during a trace (T triangles, R rays): 48·T for the precompute (held between
@@ -29,6 +30,7 @@ pub mod rays;
 pub mod sampling;
 pub mod split;
 pub mod stats;
+pub mod top;
 pub mod traverse;
 pub mod tris;
 
@@ -47,7 +49,7 @@ pub use options::{DacrtOptions, DacrtTuning, ForkSplit, Parallelism, Sampling};
 use leaf::{LeafTest, Moller, Table, Watertight};
 use rays::{RayRec, SLOT_MASK};
 use split::Node;
-use stats::Stats;
+use stats::{lap, Stats};
 use traverse::{step, Ctx};
 use tris::TriData;
 
@@ -164,21 +166,49 @@ impl Dacrt {
                     ForkSplit::Rays => p.data_min_rays,
                 },
             };
-            let (r1, r2) = recs.split_at_mut(pivot);
             let (h1, h2) = hits.split_at_mut(pivot);
             let (t1, t2) = if tmin.is_empty() {
                 (&tmin[..], &tmin[..])
             } else {
                 tmin.split_at(pivot)
             };
-            if r2.is_empty() {
-                self.root::<T>(&ctx, r1, h1, t1);
+            let root = Node {
+                bounds: self.tris.bounds,
+                cents: self.tris.centroids,
+            };
+            let mut ids = vec![0u32; live];
+            self.tris.fill_ids(&mut ids);
+            if pivot == rays.len() {
+                self.root::<T>(&ctx, &mut recs, h1, t1, &mut ids, None);
             } else {
+                // The top levels' partitions, made once for both halves (`top.rs`).
+                let t0 = ctx.clock();
+                // Sample rays estimate how many rays reach each node (and feed the sampled
+                // cost where it is on), drawn here whether or not sampling is on.
+                let mut rng = traverse::Rng(rays.len() as u64);
+                let mut buf: Vec<RayRec> = (0..traverse::MAX_SAMPLES.min(rays.len()))
+                    .map(|_| recs[rng.below(recs.len())])
+                    .collect();
+                let ns = rays::filter(&mut buf, &rays::FilterBox::new(&root.bounds));
+                let shared = match p.top_min_tris {
+                    0 => None,
+                    m => top::build(&ctx, &buf[..ns], rays.len(), &mut ids, &root, m),
+                };
+                if let Some(s) = &stats {
+                    lap(&s.split_ns, t0);
+                    Stats::add(
+                        &s.top_nodes,
+                        shared.as_ref().map_or(0, |t| t.count()) as u64,
+                    );
+                }
+                let mut ids2 = ids.clone();
+                let (r1, r2) = recs.split_at_mut(pivot);
+                let shared = shared.as_ref();
                 let (_, migrated) = parallel::join_tracked(
                     &ctx,
-                    || self.root::<T>(&ctx, r1, h1, t1),
+                    || self.root::<T>(&ctx, r1, h1, t1, &mut ids, shared),
                     |migrated| {
-                        self.root::<T>(&ctx, r2, h2, t2);
+                        self.root::<T>(&ctx, r2, h2, t2, &mut ids2, shared);
                         migrated
                     },
                 );
@@ -217,18 +247,25 @@ impl Dacrt {
     }
 
     /// Filters `recs` against the root box and traces the active ones into `hits` (the
-    /// records' slots index `hits` and `tmin`).
-    fn root<T: LeafTest>(&self, ctx: &Ctx, recs: &mut [RayRec], hits: &mut [Hit], tmin: &[f32]) {
+    /// records' slots index `hits` and `tmin`) over the triangles `ids`, already
+    /// partitioned as `top` says where it is given.
+    fn root<T: LeafTest>(
+        &self,
+        ctx: &Ctx,
+        recs: &mut [RayRec],
+        hits: &mut [Hit],
+        tmin: &[f32],
+        ids: &mut [u32],
+        top: Option<&top::Top>,
+    ) {
         let root = Node {
             bounds: self.tris.bounds,
             cents: self.tris.centroids,
         };
         let n = ctx.filter(recs, &root.bounds);
         if n > 0 {
-            let mut ids = vec![0u32; self.tris.live()];
-            self.tris.fill_ids(&mut ids);
             let mut table = Table { hits, tmin };
-            step::<T>(ctx, &mut recs[..n], &mut table, &mut ids, &root, 0);
+            step::<T>(ctx, &mut recs[..n], &mut table, ids, &root, 0, top);
         }
     }
 

@@ -91,6 +91,11 @@ pub struct Parallelism {
     pub grain: usize,
     /// What forks split.
     pub split: ForkSplit,
+    /// With several threads, the triangles are partitioned once for all threads down to
+    /// nodes of this many triangles before the batch's rays are split (`top.rs`), so that
+    /// the halves do not partition the top levels twice. 0: off (each half partitions
+    /// everything it reaches).
+    pub top_min_tris: usize,
 }
 
 impl Default for Parallelism {
@@ -103,6 +108,7 @@ impl Default for Parallelism {
             data_min_tris: 1 << 13,
             grain: 1 << 14,
             split: ForkSplit::Rays,
+            top_min_tris: 1 << 12,
         }
     }
 }
@@ -178,7 +184,7 @@ impl DacrtOptions {
     /// Applies overrides from `get(name)`: `RAYD_DACRT_LEAF_RAYS`, `_LEAF_TRIS`,
     /// `_SAH_RATIO`, `_ALL_AXES` (0/1), `_BIG_FRACTION`, `_TRAVERSAL_COST`, `_TWO_BOX` (0/1), `_SAMPLES`, `_SAMPLE_MIN_RAYS`, `_BOX_COST`, `_SAMPLE_PRIOR`, `_SAMPLE_COST`,
     /// `_SAMPLE_ORDER`, `_SAMPLE_SKIP` (0/1; only where sampling is on), `_PARALLEL` (0/1),
-    /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_FORK_SPLIT` (rays/tris), `_STATS` (0/1).
+    /// `_DATA_MIN_RAYS`, `_FORK_MIN_RAYS`, `_FORK_BUDGET`, `_DATA_MIN_TRIS`, `_GRAIN`, `_FORK_SPLIT` (rays/tris), `_TOP_MIN_TRIS`, `_STATS` (0/1).
     /// Unparsable values are ignored.
     pub fn apply(mut self, get: impl Fn(&str) -> Option<String>) -> DacrtOptions {
         fn num<T: std::str::FromStr>(v: Option<String>, into: &mut T) {
@@ -222,6 +228,7 @@ impl DacrtOptions {
             Some("tris") => self.parallel.split = ForkSplit::Tris,
             _ => {}
         }
+        num(g("TOP_MIN_TRIS"), &mut self.parallel.top_min_tris);
         flag(g("STATS"), &mut self.stats);
         self.leaf_rays = self.leaf_rays.max(1);
         self.leaf_tris = self.leaf_tris.max(2);

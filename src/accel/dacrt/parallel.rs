@@ -24,7 +24,8 @@
 //! - **Ray-split forks** (the default in the fork band): the step's rays are split into
 //!   two coherent halves that traverse the same node at once (see [`fork_rays`]); each half
 //!   keeps its own front-to-back culling, at the price of partitioning the node's triangles
-//!   twice.
+//!   twice — except in the top levels, which a batch partitions once for all threads
+//!   before its first split (`top.rs`).
 //!
 //! Forks are made only when a thread is idle ([`Workers`]), so the second half is almost
 //! always taken by another thread at once.
@@ -40,6 +41,7 @@ use super::leaf::{leaf, merge_slot, LeafTest, Sink, Table};
 use super::rays::{filter, filter_copy, FilterBox, RayRec, SLOT_MASK};
 use super::split::{middle_plane, partition_acc, Acc, Bins, Node, Parts};
 use super::stats::{lap, Stats};
+use super::top::Top;
 use super::traverse::{step, visit, Child, Ctx};
 use super::tris::TriBox;
 
@@ -381,6 +383,7 @@ impl Copy {
                 child.ids,
                 &child.node,
                 depth + 1,
+                child.top,
             );
         }
     }
@@ -495,7 +498,9 @@ fn rebase(rays: &mut [RayRec], delta: u32) {
 /// Since the halves hold the slots below and above the split, the hit table splits there
 /// too, into two disjoint slices: nothing is copied but the node's id array (each half
 /// partitions the node's triangles its own way); the second half's records count their
-/// slots from the split while it runs. Each half keeps its own front-to-back culling,
+/// slots from the split while it runs. Where the node is in the shared top levels
+/// (`top.rs`), the copy is already partitioned and both halves follow the same partitions
+/// there. Each half keeps its own front-to-back culling,
 /// which a triangle-split fork loses for the far child. Returns false (nothing done) when
 /// the rays do not split.
 pub fn fork_rays<T: LeafTest>(
@@ -505,6 +510,7 @@ pub fn fork_rays<T: LeafTest>(
     ids: &mut [u32],
     node: &Node,
     depth: u32,
+    top: Option<&Top>,
 ) -> bool {
     let n = rays.len();
     let cost = ids.len() / 13 + 1;
@@ -543,14 +549,14 @@ pub fn fork_rays<T: LeafTest>(
                 hits: hits1,
                 tmin: tmin1,
             };
-            step::<T>(ctx, r1, &mut t, ids, node, depth);
+            step::<T>(ctx, r1, &mut t, ids, node, depth, top);
         },
         |migrated| {
             let mut t = Table {
                 hits: hits2,
                 tmin: tmin2,
             };
-            step::<T>(ctx, &mut *r2, &mut t, &mut ids2, node, depth);
+            step::<T>(ctx, &mut *r2, &mut t, &mut ids2, node, depth, top);
             migrated
         },
     );

@@ -34,6 +34,8 @@ pub struct Stats {
     pub forks_stolen: AtomicU64,
     /// Forks whose second child ran on the same thread.
     pub forks_local: AtomicU64,
+    /// Nodes of the shared top levels (`top.rs`), partitioned once for all threads.
+    pub top_nodes: AtomicU64,
 }
 
 /// Adds the time since `t0` to `into` (when timing).
@@ -65,7 +67,7 @@ impl Stats {
         format!(
             "{name}: {rays} rays in {:.1} ms: filter {:.0}% intersect {:.0}% partition {:.0}% \
              merge {:.0}% (thread-ms {:.1}); {:.1} box tests/ray, {:.1} tri tests/ray; \
-             {} nodes ({} binned, {} sampled, {} skips), {} leaves; forks {} stolen {} local",
+             {} nodes ({} binned, {} sampled, {} skips), {} leaves; forks {} stolen {} local; {} shared top nodes",
             wall_s * 1e3,
             pct(f),
             pct(l),
@@ -81,6 +83,7 @@ impl Stats {
             g(&self.leaves),
             g(&self.forks_stolen),
             g(&self.forks_local),
+            g(&self.top_nodes),
         )
     }
 }

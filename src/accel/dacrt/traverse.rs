@@ -19,6 +19,7 @@ use super::rays::{filter, filter2, filter_back, FilterBox, RayRec};
 use super::sampling::{sample_pair, sampled_cost, Sampled};
 use super::split::{middle, sah, split_axis, Bins, Candidate, Node, Parts, CANDIDATES};
 use super::stats::{lap, Stats};
+use super::top::Top;
 use super::tris::TriData;
 
 /// What every step of one trace shares.
@@ -75,9 +76,13 @@ pub struct Child<'i> {
     pub ids: &'i mut [u32],
     /// Nabata's skip: no filtering for this child.
     pub skip: bool,
+    /// The child's partition, when the shared top levels already made it.
+    pub top: Option<&'i Top>,
 }
 
-/// One traversal step.
+/// One traversal step. `top`, when given, is this node's partition made once for all
+/// threads (`top.rs`): `ids` is already partitioned that way and the step only orders and
+/// filters.
 pub fn step<T: LeafTest>(
     ctx: &Ctx,
     rays: &mut [RayRec],
@@ -85,6 +90,7 @@ pub fn step<T: LeafTest>(
     ids: &mut [u32],
     node: &Node,
     depth: u32,
+    top: Option<&Top>,
 ) {
     let o = ctx.opts;
     if rays.len() < o.leaf_rays || ids.len() < o.leaf_tris {
@@ -93,12 +99,12 @@ pub fn step<T: LeafTest>(
     if ctx.parallel
         && ctx.opts.parallel.split == ForkSplit::Rays
         && parallel::should_fork(ctx, rays.len())
-        && parallel::fork_rays::<T>(ctx, rays, table, ids, node, depth)
+        && parallel::fork_rays::<T>(ctx, rays, table, ids, node, depth, top)
     {
         return;
     }
     let t0 = ctx.clock();
-    let plan = plan(ctx, rays, ids, node, depth);
+    let plan = plan(ctx, rays, ids, node, depth, top);
     if let Some(s) = ctx.stats {
         lap(&s.split_ns, t0);
     }
@@ -109,15 +115,18 @@ pub fn step<T: LeafTest>(
         Stats::add(&s.nodes, 1);
     }
     let (ids_l, ids_r) = ids.split_at_mut(plan.parts.mid);
+    let kids = top.map_or([None, None], |t| t.kids());
     let left = Child {
         node: plan.parts.left,
         ids: ids_l,
         skip: plan.skip[0],
+        top: kids[0],
     };
     let right = Child {
         node: plan.parts.right,
         ids: ids_r,
         skip: plan.skip[1],
+        top: kids[1],
     };
     let (first, second) = if plan.first_left {
         (left, right)
@@ -159,6 +168,7 @@ pub fn step<T: LeafTest>(
             first.ids,
             &first.node,
             depth + 1,
+            first.top,
         );
     }
     let t0 = ctx.clock();
@@ -180,6 +190,7 @@ pub fn step<T: LeafTest>(
             second.ids,
             &second.node,
             depth + 1,
+            second.top,
         );
     }
 }
@@ -208,6 +219,7 @@ pub fn visit<T: LeafTest>(
             child.ids,
             &child.node,
             depth + 1,
+            child.top,
         );
     }
 }
@@ -236,13 +248,13 @@ struct Plan {
 }
 
 /// Most sample rays a node draws.
-const MAX_SAMPLES: usize = 256;
+pub(super) const MAX_SAMPLES: usize = 256;
 
 /// A small deterministic generator for the sample positions (splitmix64).
-struct Rng(u64);
+pub(super) struct Rng(pub(super) u64);
 
 impl Rng {
-    fn next(&mut self) -> u64 {
+    pub(super) fn next(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.0;
         z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
@@ -250,29 +262,49 @@ impl Rng {
         z ^ (z >> 31)
     }
 
-    fn below(&mut self, n: usize) -> usize {
+    pub(super) fn below(&mut self, n: usize) -> usize {
         (((self.next() >> 32) * n as u64) >> 32) as usize
     }
 }
 
-/// Partitions the node's triangles and decides order and skips.
-fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) -> Option<Plan> {
+/// Draws the sample rays of a node with `rays` active into `buf` (none when sampling is
+/// off or the node has too few rays); returns how many.
+fn draw_samples(
+    ctx: &Ctx,
+    rays: &[RayRec],
+    t: usize,
+    depth: u32,
+    buf: &mut [RayRec; MAX_SAMPLES],
+) -> usize {
+    let s = &ctx.opts.sampling;
+    let n = rays.len();
+    if !(s.enabled() && n > s.min_rays) {
+        return 0;
+    }
+    let ns = s.samples.min(MAX_SAMPLES);
+    let mut rng = Rng((n as u64) << 32 ^ (t as u64) << 8 ^ u64::from(depth));
+    for b in buf.iter_mut().take(ns) {
+        *b = rays[rng.below(n)];
+    }
+    ns
+}
+
+/// Partitions `ids` for a node with `n` active rays (SAH or sampled-cost binning above the
+/// ratio of rays to triangles, the middle below), using `samples` for the sampled cost.
+/// Returns the parts and, for the sampled cost, what the samples said about the chosen
+/// pair; `None` when the node should be a leaf.
+pub(super) fn choose(
+    ctx: &Ctx,
+    samples: &[RayRec],
+    n: usize,
+    ids: &mut [u32],
+    node: &Node,
+) -> Option<(Parts, Option<Sampled>)> {
     let o = ctx.opts;
     let s = &o.sampling;
     let boxes = &ctx.tris.boxes;
-    let (n, t) = (rays.len(), ids.len());
-    let mut buf = [RayRec::default(); MAX_SAMPLES];
-    let ns = if s.enabled() && n > s.min_rays {
-        let ns = s.samples.min(MAX_SAMPLES);
-        let mut rng = Rng((n as u64) << 32 ^ (t as u64) << 8 ^ u64::from(depth));
-        for b in buf.iter_mut().take(ns) {
-            *b = rays[rng.below(n)];
-        }
-        ns
-    } else {
-        0
-    };
-    let samples = &buf[..ns];
+    let t = ids.len();
+    let ns = samples.len();
     let mut info: Option<Sampled> = None;
     let parts = if n as f32 > o.sah_ratio * t as f32 {
         // Áfra bins the widest centroid axis only; `all_axes` bins the three. No iterator
@@ -324,6 +356,29 @@ fn plan(ctx: &Ctx, rays: &[RayRec], ids: &mut [u32], node: &Node, depth: u32) ->
         parallel::middle_par(boxes, ids, node, o.parallel.grain)?
     } else {
         middle(boxes, ids, node)?
+    };
+    Some((parts, info))
+}
+
+/// Partitions the node's triangles (unless the shared top levels did) and decides order
+/// and skips.
+fn plan(
+    ctx: &Ctx,
+    rays: &[RayRec],
+    ids: &mut [u32],
+    node: &Node,
+    depth: u32,
+    top: Option<&Top>,
+) -> Option<Plan> {
+    let o = ctx.opts;
+    let s = &o.sampling;
+    let t = ids.len();
+    let mut buf = [RayRec::default(); MAX_SAMPLES];
+    let ns = draw_samples(ctx, rays, t, depth, &mut buf);
+    let samples = &buf[..ns];
+    let (parts, mut info) = match top {
+        Some(top) => (top.parts, None),
+        None => choose(ctx, samples, rays.len(), ids, node)?,
     };
     if ns > 0 && info.is_none() && (s.order || s.skip) {
         info = Some(sample_pair(
