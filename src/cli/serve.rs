@@ -65,7 +65,6 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
             callbacks: callbacks.map(|c| Arc::new(c) as Arc<dyn crate::app::CallbackSender>),
             max_triangles: config.max_triangles,
             geometry_bytes: config.geometry_bytes as usize,
-            ..Default::default()
         },
     );
     let router = service::router(state.clone(), service::routes::routes())

@@ -428,9 +428,15 @@ struct Scratch {
     paths: Vec<PathState>,
     steps: Vec<Step>,
     trace: TraceBufs,
-    shadow_rays: Vec<Ray>,
-    shadow_gain: Vec<Vec3>,
-    shadow_pixel: Vec<usize>,
+    shadows: Shadows,
+}
+
+/// One bounce's shadow rays, what each adds when unoccluded, and its pixel in the wave.
+#[derive(Default)]
+struct Shadows {
+    rays: Vec<Ray>,
+    gain: Vec<Vec3>,
+    pixel: Vec<usize>,
 }
 
 /// The rays, hits and indices of one batch sent to the intersector.
@@ -509,9 +515,7 @@ fn render_wave(
         paths,
         steps,
         trace,
-        shadow_rays,
-        shadow_gain,
-        shadow_pixel,
+        shadows,
     } = scratch;
     paths.clear();
     paths.par_extend((start..end).into_par_iter().map(|p| {
@@ -586,10 +590,7 @@ fn render_wave(
                 add(&mut out[i], k.to_array(), 1.0);
             }
         }
-        Integrator::Path => {
-            let shadows = (&mut *shadow_rays, &mut *shadow_gain, &mut *shadow_pixel);
-            trace_paths(frame, paths, out, steps, trace, shadows, stats)
-        }
+        Integrator::Path => trace_paths(frame, paths, out, steps, trace, shadows, stats),
     }
 }
 
@@ -614,8 +615,6 @@ struct PathState {
     prev_pdf: f32,
     /// Whether `hit` still awaits its presence test (alpha).
     pending: bool,
-    /// Whether the path goes on after the vertex just shaded.
-    alive: bool,
 }
 
 impl PathState {
@@ -631,7 +630,6 @@ impl PathState {
             prev_ns: Vec3::ZERO,
             prev_pdf: 0.0,
             pending: false,
-            alive: true,
         }
     }
 }
@@ -808,14 +806,13 @@ struct Step {
 /// BRDF-sampled rays hit (emissive surfaces, the sky on a miss), and, at each scattering,
 /// by next-event estimation towards one light that [`LightSampler`] picks (a punctual
 /// light, a point on an emissive triangle or a sky direction).
-#[allow(clippy::too_many_arguments)]
 fn trace_paths(
     frame: Frame<'_>,
     live: &mut Vec<PathState>,
     out: &mut [[f32; 3]],
     steps: &mut Vec<Step>,
     bufs: &mut TraceBufs,
-    (shadow_rays, shadow_gain, shadow_pixel): (&mut Vec<Ray>, &mut Vec<Vec3>, &mut Vec<usize>),
+    shadows: &mut Shadows,
     stats: &mut RenderStats,
 ) {
     let options = frame.options;
@@ -828,39 +825,37 @@ fn trace_paths(
             live.par_iter_mut()
                 .map(|p| shade_vertex(frame, p, bounce, scatter, sky)),
         );
-        shadow_rays.clear();
-        shadow_gain.clear();
-        shadow_pixel.clear();
+        shadows.rays.clear();
+        shadows.gain.clear();
+        shadows.pixel.clear();
         // Every path of a wave is a distinct pixel, so the order of these adds is fixed.
         for (p, step) in live.iter().zip(steps.iter()) {
             if step.emitted != Vec3::ZERO {
                 add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
             }
             if let Some((ray, gain)) = step.shadow {
-                shadow_rays.push(ray);
-                shadow_gain.push(gain);
-                shadow_pixel.push(p.pixel);
+                shadows.rays.push(ray);
+                shadows.gain.push(gain);
+                shadows.pixel.push(p.pixel);
             }
         }
         // Each path becomes its continuation in place, and the ended ones drop out.
-        live.par_iter_mut()
-            .zip(steps.par_iter_mut())
-            .for_each(|(p, step)| match step.next.take() {
-                Some(n) => {
-                    p.ray = n.ray;
-                    p.throughput = n.throughput;
-                    p.hit = Hit::MISS;
-                    p.travelled = 0.0;
-                    p.prev_pos = n.pos;
-                    p.prev_ns = n.ns;
-                    p.prev_pdf = n.pdf;
-                    p.alive = true;
-                }
-                None => p.alive = false,
-            });
-        live.retain(|p| p.alive);
-        trace_shadows(frame, shadow_rays, shadow_gain, bufs, stats);
-        for (&pixel, gain) in shadow_pixel.iter().zip(shadow_gain.iter()) {
+        live.par_iter_mut().zip(&steps[..]).for_each(|(p, step)| {
+            if let Some(n) = &step.next {
+                p.ray = n.ray;
+                p.throughput = n.throughput;
+                p.hit = Hit::MISS;
+                p.travelled = 0.0;
+                p.prev_pos = n.pos;
+                p.prev_ns = n.ns;
+                p.prev_pdf = n.pdf;
+            }
+        });
+        // `retain` visits the paths in order, so the k-th visit is the k-th step's.
+        let mut next = steps.iter().map(|step| step.next.is_some());
+        live.retain(|_| next.next().unwrap_or(false));
+        trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
+        for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
             if gain.max_element() > 0.0 {
                 add(&mut out[pixel], gain.to_array(), 1.0);
             }

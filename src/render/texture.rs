@@ -362,9 +362,13 @@ mod tests {
 
     #[test]
     fn eight_bit_texels_decode_as_f32_texels_would() {
-        // Every code through the table is what the f32 path computes for the same value.
+        // Every code through the table is what the f32 path computes for the value the
+        // `image` crate converts the same code to.
         let codes: Vec<[u8; 4]> = (0..=255u8).map(|c| [c, c, c, c]).collect();
-        let as_f32: Vec<[f32; 4]> = codes.iter().map(|p| p.map(unit8)).collect();
+        let flat: Vec<u8> = codes.iter().flatten().copied().collect();
+        let img =
+            image::DynamicImage::ImageRgba8(image::RgbaImage::from_raw(256, 1, flat).unwrap());
+        let as_f32: Vec<[f32; 4]> = img.to_rgba32f().pixels().map(|p| p.0).collect();
         let a = Texels {
             width: 256,
             height: 1,

@@ -183,16 +183,18 @@ impl Dacrt {
             } else {
                 // The top levels' partitions, made once for both halves (`top.rs`).
                 let t0 = ctx.clock();
-                // Sample rays estimate how many rays reach each node (and feed the sampled
-                // cost where it is on), drawn here whether or not sampling is on.
-                let mut rng = traverse::Rng(rays.len() as u64);
-                let mut buf: Vec<RayRec> = (0..traverse::MAX_SAMPLES.min(rays.len()))
-                    .map(|_| recs[rng.below(recs.len())])
-                    .collect();
-                let ns = rays::filter(&mut buf, &rays::FilterBox::new(&root.bounds));
                 let shared = match p.top_min_tris {
                     0 => None,
-                    m => top::build(&ctx, &buf[..ns], rays.len(), &mut ids, &root, m),
+                    m => {
+                        // Sample rays estimate how many rays reach each node (and feed the
+                        // sampled cost where it is on), drawn whether or not sampling is on.
+                        let mut rng = traverse::Rng(rays.len() as u64);
+                        let mut buf: Vec<RayRec> = (0..traverse::MAX_SAMPLES.min(rays.len()))
+                            .map(|_| recs[rng.below(recs.len())])
+                            .collect();
+                        let ns = rays::filter(&mut buf, &rays::FilterBox::new(&root.bounds));
+                        top::build(&ctx, &buf[..ns], rays.len(), &mut ids, &root, m)
+                    }
                 };
                 if let Some(s) = &stats {
                     lap(&s.split_ns, t0);
