@@ -365,19 +365,33 @@ fn dacrt_refit(a: &[Triangle], b: &[Triangle], rays: &[Ray], p: Precision) -> Re
     Ok(())
 }
 
+/// One case of `refitted_trees_agree_with_brute`: `n` triangles from `seed`, moved, and
+/// 300 rays at them, under every precision.
+fn trees_case(seed: u64, n: usize) -> Result<(), String> {
+    let mut rng = Rng(seed);
+    let a = soup(&mut rng, n);
+    let b = moved(&mut rng, &a);
+    let rays = rays(&mut rng, &b, 300);
+    PRECISIONS
+        .into_iter()
+        .try_for_each(|p| trees_refit(&a, &b, &rays, p))
+}
+
+/// The case CI's run of stop 15 found (proptest picks new seeds every run, so it is kept
+/// here): two copies of one triangle, hit at the same t, where a refitted `mbvh4` under
+/// `watertight` answered with the higher id.
+#[test]
+fn refit_case_of_stop_15() {
+    assert_eq!(trees_case(11310695319153505695, 208), Ok(()));
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
     /// Every BVH core refitted to new positions answers as brute on them.
     #[test]
     fn refitted_trees_agree_with_brute(seed in any::<u64>(), n in 0usize..400) {
-        let mut rng = Rng(seed);
-        let a = soup(&mut rng, n);
-        let b = moved(&mut rng, &a);
-        let rays = rays(&mut rng, &b, 300);
-        for p in PRECISIONS {
-            prop_assert_eq!(trees_refit(&a, &b, &rays, p), Ok(()));
-        }
+        prop_assert_eq!(trees_case(seed, n), Ok(()));
     }
 
     /// DACRT's refit (its precompute) answers as a fresh DACRT and brute.

@@ -349,12 +349,13 @@ impl Channel {
                     .map(|i| h00 * p0[i] + h10 * td * m0[i] + h01 * p1[i] + h11 * td * m1[i])
                     .collect();
                 if rotation {
-                    let q = normalize_quat(Self::quat(&v)).ok_or_else(|| {
-                        bad_animation(
-                            self,
-                            format!("the rotation spline passes through zero at t = {t}"),
-                        )
-                    })?;
+                    // A spline between two unit keyframes can pass through zero (q to −q
+                    // with flat tangents, at the middle); there it names no rotation, and
+                    // the nearer keyframe stands in, so that every time has a pose.
+                    let q = match normalize_quat(Self::quat(&v)) {
+                        Some(q) => q,
+                        None => self.unit_quat(if s < 0.5 { k } else { k + 1 })?,
+                    };
                     Ok(q.to_array().to_vec())
                 } else {
                     Ok(v)

@@ -15,7 +15,7 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{lift_t, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -103,6 +103,8 @@ pub struct WtLanes<S: Simd> {
     org: [S::F8; 3],
     /// Shear `d[kx]/d[kz], d[ky]/d[kz], 1/d[kz]`.
     shear: [S::F8; 3],
+    /// Origin and direction as given, for a sliver's decision t (`lift_t`).
+    ray: [[S::F8; 3]; 2],
 }
 
 /// U, V, W in f64, rounded to f32, for the lanes of `zero` (the layer's fallback when one
@@ -150,6 +152,7 @@ impl LeafTest for Watertight {
             idx: [ikx, iky, ipick(0, 1, 2)],
             org: [okx, oky, pick(ox, oy, oz)],
             shear: [dkx / dkz, dky / dkz, s.splat_f8(1.0) / dkz],
+            ray: [r.org, r.dir],
         }
     }
 
@@ -202,8 +205,40 @@ impl LeafTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
+        let mask = inside & det.ne(zero) & t.ge(tmin) & t.le(tmax);
+        let bits = mask.bitmask();
+        let (mask, t) = if bits == 0 {
+            (mask, t)
+        } else {
+            // The layer's decision t (`lift_t`, unchanged but for slivers), per ray.
+            let [o, d] = r.ray.map(|a| a.map(|x| x.to_array()));
+            let p = std::array::from_fn(|i| [tri.p[i][0], tri.p[i][1], tri.p[i][2]]);
+            let mut ts = t.to_array();
+            let mut lifted = false;
+            let mut rest = bits;
+            while rest != 0 {
+                let l = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                let x = lift_t(
+                    [o[0][l], o[1][l], o[2][l]],
+                    [d[0][l], d[1][l], d[2][l]],
+                    &p,
+                    ts[l],
+                );
+                if x.to_bits() != ts[l].to_bits() {
+                    ts[l] = x;
+                    lifted = true;
+                }
+            }
+            if lifted {
+                let t = s.load_f8(&ts);
+                (mask & t.le(tmax), t)
+            } else {
+                (mask, t)
+            }
+        };
         Hit8 {
-            mask: inside & det.ne(zero) & t.ge(tmin) & t.le(tmax),
+            mask,
             t,
             u: v * rcp,
             v: w * rcp,

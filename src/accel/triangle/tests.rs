@@ -721,3 +721,96 @@ fn refined_t_is_clamped_into_the_interval() {
     }
     assert!(below > 100 && above > 100, "{below} {above}");
 }
+
+/// Where the line of `ray` enters the bounding box of `p`, in f64 (axes with a zero
+/// direction component ignored).
+fn box_entry(ray: &Ray, p: &[[f32; 3]; 3]) -> f64 {
+    (0..3)
+        .filter(|&k| ray.dir[k] != 0.0)
+        .map(|k| {
+            let lo = p
+                .iter()
+                .map(|v| f64::from(v[k]))
+                .fold(f64::INFINITY, f64::min);
+            let hi = p
+                .iter()
+                .map(|v| f64::from(v[k]))
+                .fold(f64::NEG_INFINITY, f64::max);
+            let near = if ray.dir[k] > 0.0 { lo } else { hi };
+            (near - f64::from(ray.org[k])) / f64::from(ray.dir[k])
+        })
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// The sliver of `refit`'s stop-15 case: the paper's t lies before the triangle's box, and
+/// the decision t is moved up to the box (within an f32 rounding, downwards).
+#[test]
+fn a_slivers_decision_t_is_not_before_its_box() {
+    let p = [
+        [3202.948, 1314.8987, -1469.6019],
+        [4019.5227, 1782.2806, -1467.3832],
+        [4836.0977, 2249.6626, -1465.1643],
+    ];
+    let ray = Ray {
+        org: [3739.5298, -1227.3225, -2522.1582],
+        tmin: 0.0,
+        dir: [-430.35303, 2603.0232, 1052.845],
+        tmax: f32::INFINITY,
+    };
+    let r = PreparedRay::new(&ray);
+    let h = Watertight::intersect_lane(&r, &p, ray.tmax).expect("a hit");
+    let entry = box_entry(&ray, &p);
+    assert!(f64::from(h.t) <= entry, "t {} entry {entry}", h.t);
+    assert!(f64::from(h.t.next_up()) > entry, "t {} entry {entry}", h.t);
+}
+
+/// On random slivers, needles and fat triangles the decision t is never before the
+/// triangle's box by more than its rounding, and a fat triangle's hit is never moved.
+#[test]
+fn decision_t_never_lies_before_the_triangles_box() {
+    let mut rng = Rng(0x5117_e2);
+    let mut moved = 0;
+    for i in 0..20_000 {
+        let a = scale(rng.vec(), 1e3);
+        let d = rng.vec();
+        let fat = i % 2 == 0;
+        let b = add(a, scale(d, 800.0));
+        let c = if fat {
+            add(a, scale(rng.vec(), 800.0))
+        } else {
+            add(a, add(scale(d, 1600.0), scale(rng.vec(), 1e-3)))
+        };
+        let tri = Triangle { v: [a, b, c] };
+        if tri.is_degenerate() {
+            continue;
+        }
+        let target = lerp3(&tri, rng.unit() * 0.5, rng.unit() * 0.5);
+        let org = add(target, scale(rng.vec(), 3e3));
+        let dir = std::array::from_fn(|k| target[k] - org[k]);
+        let ray = Ray {
+            org,
+            tmin: 0.0,
+            dir,
+            tmax: f32::INFINITY,
+        };
+        let r = PreparedRay::new(&ray);
+        let p = Watertight::lane_data(&tri);
+        let Some(h) = Watertight::intersect_lane(&r, &p, ray.tmax) else {
+            continue;
+        };
+        let entry = box_entry(&ray, &p);
+        assert!(
+            f64::from(h.t.next_up()) > entry,
+            "case {i}: t {} before the box at {entry}",
+            h.t
+        );
+        let paper = h.t;
+        let lifted = lift_t(org, dir, &p, paper);
+        assert_eq!(lifted.to_bits(), paper.to_bits(), "lifting is idempotent");
+        if f64::from(paper) <= entry && f64::from(paper.next_up()) > entry {
+            moved += 1;
+            assert!(!fat || entry - f64::from(paper) < 1e-3, "case {i}");
+        }
+    }
+    eprintln!("{moved} hits at their box's entry");
+}

@@ -90,6 +90,78 @@ pub fn refined_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
     x + 0.0
 }
 
+/// The decision t of a hit of the ray `(org, dir)` on the triangle `p` whose paper t is
+/// `t`: `t` itself, unless the ray's line meets the triangle's bounding box only after `t`
+/// (on some axis, `org + t·dir` lies before the box's near plane), and then the parameter
+/// where the line enters the box, rounded down to f32.
+///
+/// Why: the traversals skip a box whose entry distance lies beyond the best decision t so
+/// far, which is exact only if no triangle's decision t lies before its own box. For a fat
+/// triangle the paper's t errs by far less than the boxes' conservative growth (see
+/// `accel::mbvh::ray`), but a sliver's t is cancellation noise of the size of its extent
+/// along the ray, and can fall before its box: two exact copies of a sliver then got the
+/// same t, one was found first, and the other's box, entered after that t, was skipped, so
+/// the higher id won. Raised to the box, such a t can no longer end the search early, and
+/// brute force, which decides with the same function, agrees bit for bit.
+///
+/// The check is exact and cheap (an f32 product is exact in f64, the difference of two f32
+/// nearly always is); the division runs only for such slivers, never for a fat triangle.
+/// Axes with a zero direction component give no entry. A NaN `t` is returned as it is.
+#[inline]
+pub fn lift_t(org: [f32; 3], dir: [f32; 3], p: &[[f32; 3]; 3], t: f32) -> f32 {
+    let mut entry = f64::NEG_INFINITY;
+    let tt = f64::from(t);
+    for k in 0..3 {
+        let d = dir[k];
+        let (lo, hi) = (
+            min_x86(min_x86(p[0][k], p[1][k]), p[2][k]),
+            max_x86(max_x86(p[0][k], p[1][k]), p[2][k]),
+        );
+        let (d, o) = (f64::from(d), f64::from(org[k]));
+        let reach = tt * d;
+        if d > 0.0 && reach < f64::from(lo) - o {
+            entry = entry.max((f64::from(lo) - o) / d);
+        } else if d < 0.0 && reach > f64::from(hi) - o {
+            entry = entry.max((f64::from(hi) - o) / d);
+        }
+    }
+    if entry > tt {
+        let e = entry as f32;
+        if f64::from(e) > entry {
+            e.next_down()
+        } else {
+            e
+        }
+    } else {
+        t
+    }
+}
+
+/// [`lift_t`] for the lanes of `bits` of an 8-wide test (lane `l`'s vertices are `p(l)`,
+/// its decision t `t[l]`, replaced where lifted): whether any lane was lifted. A lifted
+/// lane stays a hit only while its t is within the interval, which the caller re-tests.
+#[inline]
+pub fn lift8(
+    org: [f32; 3],
+    dir: [f32; 3],
+    p: impl Fn(usize) -> [[f32; 3]; 3],
+    t: &mut [f32; 8],
+    bits: u32,
+) -> bool {
+    let mut lifted = false;
+    let mut rest = bits;
+    while rest != 0 {
+        let lane = rest.trailing_zeros() as usize;
+        rest &= rest - 1;
+        let x = lift_t(org, dir, &p(lane), t[lane]);
+        if x.to_bits() != t[lane].to_bits() {
+            t[lane] = x;
+            lifted = true;
+        }
+    }
+    lifted
+}
+
 /// The f64 fallback for the lanes of `zero`, on arrays (cold; kept out of the kernel so the
 /// hot path stays small).
 #[cold]
@@ -154,6 +226,10 @@ impl TriTest for Watertight {
         let rcp = 1.0 / det;
         let t = tt * rcp;
         if det != 0.0 && t >= r.tmin && t <= tmax {
+            let t = lift_t(r.org, r.dir, p, t);
+            if !(t <= tmax) {
+                return None;
+            }
             Some(TriHit {
                 t,
                 u: v * rcp,
@@ -222,6 +298,27 @@ impl TriTest for Watertight {
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
         let hit = inside & det.ne(zero) & t.ge(r.tmin) & t.le(tmax);
+        let bits = hit.bitmask();
+        let (hit, t) = if bits == 0 {
+            (hit, t)
+        } else {
+            // The decision t of every hit lane (`lift_t`): unchanged but for slivers.
+            let first = |v: S::F8| v.to_array()[0];
+            let mut ts = t.to_array();
+            let lifted = lift8(
+                r.org.map(first),
+                r.dir.map(first),
+                |l| tri.lane(l),
+                &mut ts,
+                bits,
+            );
+            if lifted {
+                let t = s.load_f8(&ts);
+                (hit & t.le(tmax), t)
+            } else {
+                (hit, t)
+            }
+        };
         // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
         (hit, t, v * rcp, w * rcp)
     }
