@@ -801,6 +801,35 @@ mod tests {
         assert_eq!(q, DQuat::IDENTITY);
     }
 
+    /// A rotation spline from q to −q with flat tangents passes through zero halfway; the
+    /// nearer keyframe stands in there, so every time still has a pose.
+    #[test]
+    fn a_rotation_spline_through_zero_holds_the_nearer_keyframe() {
+        let q = [0.0, 0.0, 0.6, 0.8];
+        let mut output = vec![];
+        for v in [q, q.map(|x: f64| -x)] {
+            output.extend([0.0; 4]);
+            output.extend(v);
+            output.extend([0.0; 4]);
+        }
+        let ch = Channel {
+            animation: 0,
+            channel: 0,
+            node: 0,
+            target: Target::Rotation,
+            interpolation: Interpolation::CubicSpline,
+            input: vec![0.0, 1.0].into(),
+            output: output.into(),
+            width: 4,
+        };
+        assert_eq!(ch.sample(0.5).unwrap(), vec![0.0, 0.0, -0.6, -0.8]);
+        let at = ch.sample(0.25).unwrap();
+        assert!(
+            at.iter().zip(q).all(|(a, b)| (a - b).abs() < 1e-12),
+            "{at:?}"
+        );
+    }
+
     /// One triangle on a node whose translation moves linearly from 0 to 10 over 1 s.
     fn moving_triangle() -> Rig {
         let prim = Primitive {
