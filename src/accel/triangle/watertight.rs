@@ -227,7 +227,7 @@ impl TriTest for Watertight {
         let t = tt * rcp;
         if det != 0.0 && t >= r.tmin && t <= tmax {
             let t = lift_t(r.org, r.dir, p, t);
-            if !(t <= tmax) {
+            if t > tmax {
                 return None;
             }
             Some(TriHit {
