@@ -378,7 +378,7 @@ fn trees_case(seed: u64, n: usize) -> Result<(), String> {
 }
 
 /// The case CI's run of stop 15 found (proptest picks new seeds every run, so it is kept
-/// here): two copies of one triangle, hit at the same t, where a refitted `mbvh4` under
+/// here): copies of one sliver, hit at the same t, where a refitted `mbvh4` under
 /// `watertight` answered with the higher id.
 #[test]
 fn refit_case_of_stop_15() {

@@ -303,6 +303,16 @@ impl Channel {
         })
     }
 
+    /// The first keyframe of a rotation channel whose quaternion has no length (zero, or
+    /// one whose length over- or underflows): it names no rotation, so the loader refuses
+    /// it rather than fail at the first time that samples it. `None` for other targets.
+    pub fn zero_rotation(&self) -> Option<usize> {
+        if self.target != Target::Rotation {
+            return None;
+        }
+        (0..self.input.len()).find(|&k| self.unit_quat(k).is_err())
+    }
+
     /// The channel's value at `t`: 3 values, a unit quaternion's 4, or `width` weights.
     fn sample(&self, t: f64) -> Result<Vec<f64>, SceneError> {
         let n = self.input.len();

@@ -15,7 +15,7 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{lift_t, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{lift_hits, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -206,37 +206,17 @@ impl LeafTest for Watertight {
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
         let mask = inside & det.ne(zero) & t.ge(tmin) & t.le(tmax);
-        let bits = mask.bitmask();
-        let (mask, t) = if bits == 0 {
-            (mask, t)
-        } else {
-            // The layer's decision t (`lift_t`, unchanged but for slivers), per ray.
-            let [o, d] = r.ray.map(|a| a.map(|x| x.to_array()));
-            let p = std::array::from_fn(|i| [tri.p[i][0], tri.p[i][1], tri.p[i][2]]);
-            let mut ts = t.to_array();
-            let mut lifted = false;
-            let mut rest = bits;
-            while rest != 0 {
-                let l = rest.trailing_zeros() as usize;
-                rest &= rest - 1;
-                let x = lift_t(
-                    [o[0][l], o[1][l], o[2][l]],
-                    [d[0][l], d[1][l], d[2][l]],
-                    &p,
-                    ts[l],
-                );
-                if x.to_bits() != ts[l].to_bits() {
-                    ts[l] = x;
-                    lifted = true;
-                }
-            }
-            if lifted {
-                let t = s.load_f8(&ts);
-                (mask & t.le(tmax), t)
-            } else {
-                (mask, t)
-            }
-        };
+        // The layer's decision t (`lift_t`, unchanged but for slivers), per ray.
+        let [o, d] = r.ray;
+        let lane = |a: [S::F8; 3], l: usize| a.map(|x| x.to_array()[l]);
+        let (mask, t) = lift_hits(
+            s,
+            mask,
+            t,
+            tmax,
+            |l| (lane(o, l), lane(d, l)),
+            |_| [0, 1, 2].map(|i| [tri.p[i][0], tri.p[i][1], tri.p[i][2]]),
+        );
         Hit8 {
             mask,
             t,

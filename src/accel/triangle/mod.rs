@@ -36,7 +36,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::{lift_t, refined_t, Watertight};
+pub use watertight::{lift_hits, lift_t, refined_t, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};
@@ -117,6 +117,8 @@ pub struct PreparedRay8<S: Simd> {
     pub k: [usize; 3],
     /// Watertight shear (see [`PreparedRay::shear`]).
     pub shear: [S::F8; 3],
+    /// Origin and direction as scalars, for the rare per-lane work of a hit (`lift_t`).
+    pub ray: [[f32; 3]; 2],
 }
 
 impl<S: Simd> Clone for PreparedRay8<S> {
@@ -141,6 +143,7 @@ impl<S: Simd> PreparedRay8<S> {
             tmin: s.splat_f8(r.tmin),
             k: r.k,
             shear: v(r.shear),
+            ray: [r.org, r.dir],
         }
     }
 }

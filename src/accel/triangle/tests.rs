@@ -764,12 +764,12 @@ fn a_slivers_decision_t_is_not_before_its_box() {
     assert!(f64::from(h.t.next_up()) > entry, "t {} entry {entry}", h.t);
 }
 
-/// On random slivers, needles and fat triangles the decision t is never before the
-/// triangle's box by more than its rounding, and a fat triangle's hit is never moved.
+/// On random slivers and fat triangles the decision t is never before the triangle's box
+/// by more than its rounding, and lifting it again changes nothing. (Without `lift_t` the
+/// first assertion fails, on the slivers, within the first thousand cases.)
 #[test]
 fn decision_t_never_lies_before_the_triangles_box() {
     let mut rng = Rng(0x0051_17e2);
-    let mut moved = 0;
     for i in 0..20_000 {
         let a = scale(rng.vec(), 1e3);
         let d = rng.vec();
@@ -804,13 +804,7 @@ fn decision_t_never_lies_before_the_triangles_box() {
             "case {i}: t {} before the box at {entry}",
             h.t
         );
-        let paper = h.t;
-        let lifted = lift_t(org, dir, &p, paper);
-        assert_eq!(lifted.to_bits(), paper.to_bits(), "lifting is idempotent");
-        if f64::from(paper) <= entry && f64::from(paper.next_up()) > entry {
-            moved += 1;
-            assert!(!fat || entry - f64::from(paper) < 1e-3, "case {i}");
-        }
+        let lifted = lift_t(org, dir, &p, h.t);
+        assert_eq!(lifted.to_bits(), h.t.to_bits(), "lifting is idempotent");
     }
-    eprintln!("{moved} hits at their box's entry");
 }

@@ -109,20 +109,21 @@ pub fn refined_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
 /// Axes with a zero direction component give no entry. A NaN `t` is returned as it is.
 #[inline]
 pub fn lift_t(org: [f32; 3], dir: [f32; 3], p: &[[f32; 3]; 3], t: f32) -> f32 {
-    let mut entry = f64::NEG_INFINITY;
     let tt = f64::from(t);
+    let mut entry = f64::NEG_INFINITY;
     for k in 0..3 {
-        let d = dir[k];
-        let (lo, hi) = (
-            min_x86(min_x86(p[0][k], p[1][k]), p[2][k]),
-            max_x86(max_x86(p[0][k], p[1][k]), p[2][k]),
-        );
-        let (d, o) = (f64::from(d), f64::from(org[k]));
-        let reach = tt * d;
-        if d > 0.0 && reach < f64::from(lo) - o {
-            entry = entry.max((f64::from(lo) - o) / d);
-        } else if d < 0.0 && reach > f64::from(hi) - o {
-            entry = entry.max((f64::from(hi) - o) / d);
+        let d = f64::from(dir[k]);
+        let near = if d > 0.0 {
+            min_x86(min_x86(p[0][k], p[1][k]), p[2][k])
+        } else if d < 0.0 {
+            max_x86(max_x86(p[0][k], p[1][k]), p[2][k])
+        } else {
+            continue;
+        };
+        let gap = f64::from(near) - f64::from(org[k]);
+        // Short of the near plane: `t·d` has not yet covered the gap, on the ray's side.
+        if (d > 0.0 && tt * d < gap) || (d < 0.0 && tt * d > gap) {
+            entry = entry.max(gap / d);
         }
     }
     if entry > tt {
@@ -137,29 +138,40 @@ pub fn lift_t(org: [f32; 3], dir: [f32; 3], p: &[[f32; 3]; 3], t: f32) -> f32 {
     }
 }
 
-/// [`lift_t`] for the lanes of `bits` of an 8-wide test (lane `l`'s vertices are `p(l)`,
-/// its decision t `t[l]`, replaced where lifted): whether any lane was lifted. A lifted
-/// lane stays a hit only while its t is within the interval, which the caller re-tests.
-#[inline]
-pub fn lift8(
-    org: [f32; 3],
-    dir: [f32; 3],
+/// [`lift_t`] on the lanes of an 8-wide test's `hit` mask, lane `l` being the ray `ray(l)`
+/// (origin, direction) on the triangle `p(l)`: the new mask and t. A lifted lane stays a
+/// hit only while its t is within `tmax`. Shared by the layer's 8-triangle test and DACRT's
+/// 8-ray leaf test, so that both decide exactly as the scalar test does.
+#[inline(always)]
+pub fn lift_hits<S: Simd>(
+    s: S,
+    hit: S::M8,
+    t: S::F8,
+    tmax: S::F8,
+    ray: impl Fn(usize) -> ([f32; 3], [f32; 3]),
     p: impl Fn(usize) -> [[f32; 3]; 3],
-    t: &mut [f32; 8],
-    bits: u32,
-) -> bool {
+) -> (S::M8, S::F8) {
+    let mut rest = hit.bitmask();
+    if rest == 0 {
+        return (hit, t);
+    }
+    let mut ts = t.to_array();
     let mut lifted = false;
-    let mut rest = bits;
     while rest != 0 {
-        let lane = rest.trailing_zeros() as usize;
+        let l = rest.trailing_zeros() as usize;
         rest &= rest - 1;
-        let x = lift_t(org, dir, &p(lane), t[lane]);
-        if x.to_bits() != t[lane].to_bits() {
-            t[lane] = x;
+        let (org, dir) = ray(l);
+        let x = lift_t(org, dir, &p(l), ts[l]);
+        if x.to_bits() != ts[l].to_bits() {
+            ts[l] = x;
             lifted = true;
         }
     }
-    lifted
+    if !lifted {
+        return (hit, t);
+    }
+    let t = s.load_f8(&ts);
+    (hit & t.le(tmax), t)
 }
 
 /// The f64 fallback for the lanes of `zero`, on arrays (cold; kept out of the kernel so the
@@ -298,27 +310,8 @@ impl TriTest for Watertight {
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
         let hit = inside & det.ne(zero) & t.ge(r.tmin) & t.le(tmax);
-        let bits = hit.bitmask();
-        let (hit, t) = if bits == 0 {
-            (hit, t)
-        } else {
-            // The decision t of every hit lane (`lift_t`): unchanged but for slivers.
-            let first = |v: S::F8| v.to_array()[0];
-            let mut ts = t.to_array();
-            let lifted = lift8(
-                r.org.map(first),
-                r.dir.map(first),
-                |l| tri.lane(l),
-                &mut ts,
-                bits,
-            );
-            if lifted {
-                let t = s.load_f8(&ts);
-                (hit & t.le(tmax), t)
-            } else {
-                (hit, t)
-            }
-        };
+        // The decision t of every hit lane (`lift_t`): unchanged but for slivers.
+        let (hit, t) = lift_hits(s, hit, t, tmax, |_| (r.ray[0], r.ray[1]), |l| tri.lane(l));
         // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
         (hit, t, v * rcp, w * rcp)
     }

@@ -176,25 +176,7 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
                     format!("channel {ci}: output accessor {a} value {k} is not finite"),
                 ));
             }
-            // The specification asks for unit quaternions; any non-zero one is normalised,
-            // but one whose length is zero (or over- or underflows) names no rotation, and
-            // is refused here rather than at the first time that samples it.
-            if path == Path::Rotation {
-                let value = usize::from(per_key == 3);
-                let zero = (0..input.len()).find(|k| {
-                    let q = &output[(k * per_key + value) * 4..][..4];
-                    rig::normalize_quat(rig_quat(q)).is_none()
-                });
-                if let Some(k) = zero {
-                    return Err(bad(
-                        ai,
-                        format!(
-                            "channel {ci}: rotation keyframe {k} (output accessor {a}) has no length"
-                        ),
-                    ));
-                }
-            }
-            channels.push(Channel {
+            let channel = Channel {
                 animation: ai,
                 channel: ci,
                 node,
@@ -207,13 +189,18 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
                 input,
                 output,
                 width,
-            });
+            };
+            // The specification asks for unit quaternions; any non-zero one is normalised.
+            if let Some(k) = channel.zero_rotation() {
+                return Err(bad(
+                    ai,
+                    format!(
+                        "channel {ci}: rotation keyframe {k} (output accessor {a}) has no length"
+                    ),
+                ));
+            }
+            channels.push(channel);
         }
     }
     Ok(Animations { infos, channels })
-}
-
-/// A quaternion from its glTF order (x, y, z, w).
-fn rig_quat(v: &[f64]) -> glam::DQuat {
-    glam::DQuat::from_xyzw(v[0], v[1], v[2], v[3])
 }
