@@ -15,11 +15,12 @@
 //! again with `tmin` and then `tmax` set exactly to its hit distance (the closed interval).
 //! All build qualities, both precisions and every SIMD backend the CPU has are checked.
 //!
-//! One exemption, as in `brute_oracle`: under `precision=fast` a hit on a sliver
-//! (`longest edge² / 2·area > 1e3`) may be missed, because Möller–Trumbore's t on slivers
-//! is cancellation noise that can lie anywhere along the ray, outside every box that
-//! holds the triangle. The watertight test's t always lies within the triangle's depth
-//! range, so it has no exemption.
+//! One exemption: under `precision=fast` a hit whose point lies outside its triangle's box
+//! by more than a sliver of the slab test's growth may be missed (`common::unreliable`).
+//! Möller–Trumbore's t errs with the triangle's distance from the origin rather than its
+//! size, and on slivers it is cancellation noise, so it can lie before every box that holds
+//! the triangle. The watertight test's decision t is lifted to its box (`lift_t`), so it
+//! has no exemption.
 //!
 //! The shared scenes are checked by the `#[ignore]`d `shared_scenes_agree_with_brute`:
 //!
@@ -29,7 +30,7 @@
 
 mod common;
 
-use common::{add, bits, sliver, Rng, SLIVER};
+use common::{add, bits, unreliable, Rng};
 use proptest::prelude::*;
 use rayd::accel::brute::Brute;
 use rayd::accel::bvh::{Bvh2, Mbvh4, Mbvh8};
@@ -255,14 +256,14 @@ fn check(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Result<(), St
     brute.trace(rays, Query::Closest, &mut reference);
     let mut ref_occ = vec![0u8; rays.len()];
     brute.occluded(rays, &mut ref_occ);
-    // Under `fast`, whether every triangle the ray hits is a sliver (then a core may miss).
-    let only_slivers = |r: &Ray| {
+    // Under `fast`, whether every hit of the ray is one a tree may miss (`unreliable`).
+    let only_unreliable = |r: &Ray| {
         precision == Precision::Fast
             && tris
                 .iter()
                 .filter(|t| !t.is_degenerate())
-                .filter(|t| intersect(precision, r, t).is_some())
-                .all(|t| sliver(t) > SLIVER)
+                .filter_map(|t| intersect(precision, r, t).map(|h| (t, h.t)))
+                .all(|(t, ht)| unreliable(t, r, ht))
     };
     let mut hits = vec![Hit::MISS; rays.len()];
     let mut occ = vec![0u8; rays.len()];
@@ -272,7 +273,7 @@ fn check(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Result<(), St
             if bits(h) != bits(want) {
                 let exempt = precision == Precision::Fast
                     && want.is_hit()
-                    && sliver(&tris[want.prim as usize]) > SLIVER;
+                    && unreliable(&tris[want.prim as usize], &rays[i], want.t);
                 if !exempt {
                     return Err(format!(
                         "{name}: closest of ray {i} {:?}: got {h:?}, brute {want:?}",
@@ -284,7 +285,7 @@ fn check(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Result<(), St
         core.trace(rays, Query::Any, &mut hits);
         for (i, (h, &want)) in hits.iter().zip(&ref_occ).enumerate() {
             let r = &rays[i];
-            if h.is_hit() != (want != 0) && !only_slivers(r) {
+            if h.is_hit() != (want != 0) && !only_unreliable(r) {
                 return Err(format!(
                     "{name}: any of ray {i} {r:?}: got {h:?}, brute occluded={want}"
                 ));
@@ -304,7 +305,7 @@ fn check(tris: &[Triangle], rays: &[Ray], precision: Precision) -> Result<(), St
         }
         core.occluded(rays, &mut occ);
         for (i, (&o, &want)) in occ.iter().zip(&ref_occ).enumerate() {
-            if o != want && !only_slivers(&rays[i]) {
+            if o != want && !only_unreliable(&rays[i]) {
                 return Err(format!(
                     "{name}: occluded of ray {i} {:?}: got {o}, brute {want}",
                     rays[i]
@@ -504,4 +505,17 @@ fn shared_scenes_agree_with_brute() {
             check_scene(f, &load(&p), 2000);
         }
     }
+}
+
+/// Stop 16's CI case: under `fast`, a small fat triangle 38 units from the origin whose
+/// Möller–Trumbore t (error ~1e-4 there) puts the hit 6e-5 short of the triangle's own box;
+/// traced again with `tmax` at that t, the trees skip the box. `fast` permits the miss
+/// (`common::unreliable`); this pins that the exemption covers it and nothing else fails.
+#[test]
+fn fast_hit_before_its_box_of_stop_16() {
+    let mut rng = Rng(10427758704779152120);
+    let tris = scene(&mut rng, 18);
+    let rays = rays(&mut rng, &tris, 300);
+    check(&tris, &rays, Precision::Fast).unwrap();
+    check(&tris, &rays, Precision::Watertight).unwrap();
 }

@@ -19,7 +19,7 @@
 
 mod common;
 
-use common::{add, bits, sliver, Rng, SLIVER};
+use common::{add, bits, unreliable, Rng};
 use proptest::prelude::*;
 use rayd::accel::bvh::RefitError;
 use rayd::accel::triangle::intersect;
@@ -194,30 +194,6 @@ fn rays(rng: &mut Rng, tris: &[Triangle], n: usize) -> Vec<Ray> {
         }
     }
     out
-}
-
-/// Under `fast`, whether no tree can be expected to find the Möller–Trumbore hit of `ray`
-/// on `tri` at `t`: the triangle is a sliver (its t is cancellation noise), or the hit
-/// point lies outside the triangle's box by more than a small fraction of the slab test's
-/// growth (a grazing ray's t error; fresh builds miss these too).
-fn unreliable(tri: &Triangle, ray: &Ray, t: f32) -> bool {
-    if sliver(tri) > SLIVER {
-        return true;
-    }
-    let v = tri.v.map(|p| p.map(f64::from));
-    let big = tri
-        .v
-        .iter()
-        .flatten()
-        .chain(&ray.org)
-        .fold(0.0f64, |m, &x| m.max(f64::from(x).abs()));
-    let margin = big * f64::from(2f32.powi(-22));
-    (0..3).any(|k| {
-        let p = f64::from(ray.org[k]) + f64::from(t) * f64::from(ray.dir[k]);
-        let lo = v[0][k].min(v[1][k]).min(v[2][k]);
-        let hi = v[0][k].max(v[1][k]).max(v[2][k]);
-        p < lo - margin || p > hi + margin
-    })
 }
 
 fn make(

@@ -2,7 +2,7 @@
 //! measures the agreement tests excuse disagreements by. Each test crate uses a part.
 #![allow(dead_code)]
 
-use rayd::geometry::{Hit, Triangle};
+use rayd::geometry::{Hit, Ray, Triangle};
 
 /// A render's waves all run at once, on the calling thread's pool: the renderer's tests need
 /// no scheduler, cancellation or progress.
@@ -74,6 +74,32 @@ pub fn sliver(tri: &Triangle) -> f64 {
 
 /// [`sliver`] above which a triangle counts as one.
 pub const SLIVER: f64 = 1e3;
+
+/// Under `fast`, whether no tree can be expected to find the Möller–Trumbore hit of `ray`
+/// on `tri` at `t`: the triangle is a sliver (its t is cancellation noise), or the hit
+/// point lies outside the triangle's box by more than a small fraction of the slab test's
+/// growth. Möller–Trumbore's t errs with the triangle's distance from the origin, not its
+/// size (proto/semantics.md), so a small fat triangle far away (or a grazing ray) can put
+/// it before the box; a tree then skips the box, as `fast` permits.
+pub fn unreliable(tri: &Triangle, ray: &Ray, t: f32) -> bool {
+    if sliver(tri) > SLIVER {
+        return true;
+    }
+    let v = tri.v.map(|p| p.map(f64::from));
+    let big = tri
+        .v
+        .iter()
+        .flatten()
+        .chain(&ray.org)
+        .fold(0.0f64, |m, &x| m.max(f64::from(x).abs()));
+    let margin = big * f64::from(2f32.powi(-22));
+    (0..3).any(|k| {
+        let p = f64::from(ray.org[k]) + f64::from(t) * f64::from(ray.dir[k]);
+        let lo = v[0][k].min(v[1][k]).min(v[2][k]);
+        let hi = v[0][k].max(v[1][k]).max(v[2][k]);
+        p < lo - margin || p > hi + margin
+    })
+}
 
 /// A hit's bits, for bit-for-bit comparisons.
 pub fn bits(h: &Hit) -> [u32; 4] {
