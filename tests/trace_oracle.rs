@@ -24,6 +24,9 @@ fn repo() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// A scene of `../shared/scenes`, or `None` (with a note) where it is absent. Only the
+/// Embree peer's test uses one.
+#[cfg(feature = "embree")]
 fn shared_scene(name: &str) -> Option<PathBuf> {
     let p = repo().join("../shared/scenes").join(name);
     if p.exists() {
