@@ -41,13 +41,15 @@ fn load_gltf(data: &[u8]) {
     let static_pose = load(&LoadOptions::default(), Parts::Geometry);
     let Ok(scene) = static_pose else { return };
     if !scene.animations.is_empty() {
+        // Animations are validated at every load, so a file that loads at its static pose
+        // loads at any time, with one documented exception (proto/scenes.md): a pose whose
+        // world positions overflow f32 at that time (a huge morph weight or scale keyframe)
+        // is refused at that time, naming the vertex.
         let timed = LoadOptions { time: Some(0.37) };
-        let again = load(&timed, Parts::Geometry);
-        assert!(
-            again.is_ok(),
-            "a file that loads at its static pose must load at any time: {:?}",
-            again.err()
-        );
+        match load(&timed, Parts::Geometry) {
+            Ok(_) | Err(gltf::GltfError::NonFiniteWorldPosition { .. }) => {}
+            Err(e) => panic!("a file that loads at its static pose must load at any time: {e:?}"),
+        }
     }
     if let Ok(shaded) = load(&LoadOptions::default(), Parts::Shading) {
         assert_eq!(
