@@ -15,8 +15,9 @@
 //! again with `tmin` and then `tmax` set exactly to its hit distance (the closed interval).
 //! All build qualities, both precisions and every SIMD backend the CPU has are checked.
 //!
-//! One exemption: under `precision=fast` a hit whose point lies outside its triangle's box
-//! by more than a sliver of the slab test's growth may be missed (`common::unreliable`).
+//! One exemption: under `precision=fast` a hit on a sliver, or whose point lies outside its
+//! triangle's box by more than 2^-22 of the largest coordinate of the triangle and the
+//! origin, may be missed (`common::unreliable`).
 //! Möller–Trumbore's t errs with the triangle's distance from the origin rather than its
 //! size, and on slivers it is cancellation noise, so it can lie before every box that holds
 //! the triangle. The watertight test's decision t is lifted to its box (`lift_t`), so it
