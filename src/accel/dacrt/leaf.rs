@@ -15,7 +15,7 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{lift_hits, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{lift8, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -103,8 +103,9 @@ pub struct WtLanes<S: Simd> {
     org: [S::F8; 3],
     /// Shear `d[kx]/d[kz], d[ky]/d[kz], 1/d[kz]`.
     shear: [S::F8; 3],
-    /// Origin and direction as given, for a sliver's decision t (`lift_t`).
-    ray: [[S::F8; 3]; 2],
+    /// `1/d[kx], 1/d[ky]`, 0 where the component is ±0 (`triangle::inv`), for the
+    /// decision t (`lift_t`).
+    inv: [S::F8; 2],
 }
 
 /// U, V, W in f64, rounded to f32, for the lanes of `zero` (the layer's fallback when one
@@ -143,6 +144,9 @@ impl LeafTest for Watertight {
         let neg = dkz.lt(s.splat_f8(0.0));
         let (dkx, dky) = (pick(dy, dz, dx), pick(dz, dx, dy));
         let (dkx, dky) = (neg.select(dky, dkx), neg.select(dkx, dky));
+        // `triangle::inv`: 0 where the component is ±0.
+        let zero = s.splat_f8(0.0);
+        let inv = |d: S::F8| d.eq(zero).select(zero, s.splat_f8(1.0) / d);
         let (ikx, iky) = (ipick(1, 2, 0), ipick(2, 0, 1));
         let (ikx, iky) = (neg.select(iky, ikx), neg.select(ikx, iky));
         let [ox, oy, oz] = r.org;
@@ -152,7 +156,7 @@ impl LeafTest for Watertight {
             idx: [ikx, iky, ipick(0, 1, 2)],
             org: [okx, oky, pick(ox, oy, oz)],
             shear: [dkx / dkz, dky / dkz, s.splat_f8(1.0) / dkz],
-            ray: [r.org, r.dir],
+            inv: [inv(dkx), inv(dky)],
         }
     }
 
@@ -166,17 +170,16 @@ impl LeafTest for Watertight {
             s.load_f8(&tri.p[1]),
             s.load_f8(&tri.p[2]),
         );
-        let (a_z, b_z, c_z) = (
-            p0.permute(iz) - oz,
-            p1.permute(iz) - oz,
-            p2.permute(iz) - oz,
-        );
-        let ax = (p0.permute(ix) - ox) - sx * a_z;
-        let ay = (p0.permute(iy) - oy) - sy * a_z;
-        let bx = (p1.permute(ix) - ox) - sx * b_z;
-        let by = (p1.permute(iy) - oy) - sy * b_z;
-        let cx = (p2.permute(ix) - ox) - sx * c_z;
-        let cy = (p2.permute(iy) - oy) - sy * c_z;
+        // Vertex minus origin, `rel[i]` in the lane's order kx, ky, kz.
+        let rel = |p: S::F8| [p.permute(ix) - ox, p.permute(iy) - oy, p.permute(iz) - oz];
+        let rel = [rel(p0), rel(p1), rel(p2)];
+        let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
+        let ax = rel[0][0] - sx * a_z;
+        let ay = rel[0][1] - sy * a_z;
+        let bx = rel[1][0] - sx * b_z;
+        let by = rel[1][1] - sy * b_z;
+        let cx = rel[2][0] - sx * c_z;
+        let cy = rel[2][1] - sy * c_z;
         let mut u = cx * by - cy * bx;
         let mut v = ax * cy - ay * cx;
         let mut w = bx * ay - by * ax;
@@ -206,17 +209,10 @@ impl LeafTest for Watertight {
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
         let mask = inside & det.ne(zero) & t.ge(tmin) & t.le(tmax);
-        // The layer's decision t (`lift_t`, unchanged but for slivers), per ray.
-        let [o, d] = r.ray;
-        let lane = |a: [S::F8; 3], l: usize| a.map(|x| x.to_array()[l]);
-        let (mask, t) = lift_hits(
-            s,
-            mask,
-            t,
-            tmax,
-            |l| (lane(o, l), lane(d, l)),
-            |_| [0, 1, 2].map(|i| [tri.p[i][0], tri.p[i][1], tri.p[i][2]]),
-        );
+        // The layer's decision t (`lift_t`), per ray.
+        let minor = |i: usize| [rel[i][0], rel[i][1]];
+        let t = lift8(s, [minor(0), minor(1), minor(2)], r.inv, t);
+        let mask = mask & t.le(tmax);
         Hit8 {
             mask,
             t,

@@ -36,7 +36,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::{lift_hits, lift_t, refined_t, Watertight};
+pub use watertight::{lift8, lift_t, refined_t, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};
@@ -117,8 +117,10 @@ pub struct PreparedRay8<S: Simd> {
     pub k: [usize; 3],
     /// Watertight shear (see [`PreparedRay::shear`]).
     pub shear: [S::F8; 3],
-    /// Origin and direction as scalars, for the rare per-lane work of a hit (`lift_t`).
-    pub ray: [[f32; 3]; 2],
+    /// [`inv`] of `dir[kx]` and `dir[ky]`, for the decision t ([`lift_t`]); scalars, which
+    /// the test broadcasts from memory: two more vector registers held across the
+    /// traversal cost more in spills than the loads.
+    pub inv_k: [f32; 2],
 }
 
 impl<S: Simd> Clone for PreparedRay8<S> {
@@ -143,8 +145,19 @@ impl<S: Simd> PreparedRay8<S> {
             tmin: s.splat_f8(r.tmin),
             k: r.k,
             shear: v(r.shear),
-            ray: [r.org, r.dir],
+            inv_k: [inv(r.dir[kx]), inv(r.dir[ky])],
         }
+    }
+}
+
+/// `1 / d`, or 0 where `d` is ±0 (such an axis then gives the decision t's entry ±0, below
+/// every hit; see [`lift_t`]).
+#[inline(always)]
+pub fn inv(d: f32) -> f32 {
+    if d == 0.0 {
+        0.0
+    } else {
+        1.0 / d
     }
 }
 

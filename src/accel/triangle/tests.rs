@@ -743,7 +743,7 @@ fn box_entry(ray: &Ray, p: &[[f32; 3]; 3]) -> f64 {
 }
 
 /// The sliver of `refit`'s stop-15 case: the paper's t lies before the triangle's box, and
-/// the decision t is moved up to the box (within an f32 rounding, downwards).
+/// the decision t is moved up to the box (within the few roundings of `lift_t`'s f32 entry).
 #[test]
 fn a_slivers_decision_t_is_not_before_its_box() {
     let p = [
@@ -760,13 +760,37 @@ fn a_slivers_decision_t_is_not_before_its_box() {
     let r = PreparedRay::new(&ray);
     let h = Watertight::intersect_lane(&r, &p, ray.tmax).expect("a hit");
     let entry = box_entry(&ray, &p);
-    assert!(f64::from(h.t) <= entry, "t {} entry {entry}", h.t);
-    assert!(f64::from(h.t.next_up()) > entry, "t {} entry {entry}", h.t);
+    assert!(near_entry(h.t, entry), "t {} entry {entry}", h.t);
+    let paper = intersect_unrefined_paper(&r, &p);
+    assert!(
+        f64::from(paper) < entry * (1.0 - 1e-6),
+        "the paper's t {paper} is short"
+    );
+}
+
+/// Whether `t` is within `2^-21` (relative) of `entry`: `lift_t`'s f32 entry is a few
+/// roundings off the exact one, and along `kz`, where it does not lift, the paper's t may
+/// lie short of the box by its sum's rounding.
+fn near_entry(t: f32, entry: f64) -> bool {
+    (f64::from(t) - entry).abs() <= entry.abs() / f64::from(1u32 << 21)
+}
+
+/// The watertight test's own t, before the decision lift: the hit's t with `lift_t` undone
+/// is not observable, so it is recomputed here with the paper's formula in f32.
+fn intersect_unrefined_paper(r: &PreparedRay, p: &[[f32; 3]; 3]) -> f32 {
+    let [kx, ky, kz] = r.k;
+    let [sx, sy, sz] = r.shear;
+    let rel = |i: usize, k: usize| p[i][k] - r.org[k];
+    let (a_z, b_z, c_z) = (rel(0, kz), rel(1, kz), rel(2, kz));
+    let (ax, ay) = (rel(0, kx) - sx * a_z, rel(0, ky) - sy * a_z);
+    let (bx, by) = (rel(1, kx) - sx * b_z, rel(1, ky) - sy * b_z);
+    let (cx, cy) = (rel(2, kx) - sx * c_z, rel(2, ky) - sy * c_z);
+    let (u, v, w) = (cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax);
+    (u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z)) * (1.0 / (u + v + w))
 }
 
 /// On random slivers and fat triangles the decision t is never before the triangle's box
-/// by more than its rounding, and lifting it again changes nothing. (Without `lift_t` the
-/// first assertion fails, on the slivers, within the first thousand cases.)
+/// by more than its rounding, and lifting it again changes nothing.
 #[test]
 fn decision_t_never_lies_before_the_triangles_box() {
     let mut rng = Rng(0x0051_17e2);
@@ -800,11 +824,11 @@ fn decision_t_never_lies_before_the_triangles_box() {
         };
         let entry = box_entry(&ray, &p);
         assert!(
-            f64::from(h.t.next_up()) > entry,
+            f64::from(h.t) >= entry || near_entry(h.t, entry),
             "case {i}: t {} before the box at {entry}",
             h.t
         );
-        let lifted = lift_t(org, dir, &p, h.t);
+        let lifted = lift_t(&r, &p, h.t);
         assert_eq!(lifted.to_bits(), h.t.to_bits(), "lifting is idempotent");
     }
 }

@@ -90,10 +90,14 @@ pub fn refined_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
     x + 0.0
 }
 
-/// The decision t of a hit of the ray `(org, dir)` on the triangle `p` whose paper t is
-/// `t`: `t` itself, unless the ray's line meets the triangle's bounding box only after `t`
-/// (on some axis, `org + t·dir` lies before the box's near plane), and then the parameter
-/// where the line enters the box, rounded down to f32.
+/// The decision t of a hit whose paper t is `t`, of the prepared ray `r` on the triangle
+/// `p`: `t` raised to where the ray enters the triangle's bounding box across the planes of
+/// the two minor axes `kx`, `ky` of the ray. Per such axis `k` the near plane's distance
+/// is `m_k = min_i (p[i][k] - org[k]) · inv[k]` in f32 ([`inv`](super::inv): 0 where the
+/// direction component is ±0, so that such an axis gives the entry ±0, which no hit's t,
+/// never negative, is below), the entry `e = max(m_kx, m_ky) + 0`, and the decision t
+/// `max(e, t)`, with the x86 `min` and `max` of the SIMD layer (a NaN, which only an
+/// overflowing `p - org` can make, is then skipped: `t` stays).
 ///
 /// Why: the traversals skip a box whose entry distance lies beyond the best decision t so
 /// far, which is exact only if no triangle's decision t lies before its own box. For a fat
@@ -104,74 +108,51 @@ pub fn refined_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
 /// the higher id won. Raised to the box, such a t can no longer end the search early, and
 /// brute force, which decides with the same function, agrees bit for bit.
 ///
-/// The check is exact and cheap (an f32 product is exact in f64, the difference of two f32
-/// nearly always is); the division runs only for such slivers, never for a fat triangle.
-/// Axes with a zero direction component give no entry. A NaN `t` is returned as it is.
+/// Why not `kz`: the paper's t is `Σ U·z_i / Σ U` with `U, V, W` of one sign, a convex
+/// combination of the vertices' depths along `kz` (`z_i = (p[i][kz] - org[kz]) /
+/// dir[kz]`), so along `kz` the hit point never lies before the box by more than the sum's
+/// rounding (a few units of 2^-24 of `|p| + |org|`), far inside every tree's margin. The
+/// minor axes have no such bound: there a sliver's garbage barycentrics move the point
+/// anywhere along the ray.
+///
+/// The entry is within a few roundings of the exact one (`inv` and the product are each
+/// rounded once, the difference nearly always exact), far inside every tree's margins
+/// (the slab test's growth `δ`, DACRT's box growth and `T_SLACK`), so a box holding the
+/// triangle is entered no later than this t. `min` over the vertices is the near plane's
+/// distance whatever the direction's sign (a negative `inv` reverses the order), so no
+/// branch is needed. The `+ 0` makes a zero entry `+0`, so `max(e, t)` keeps `t`'s own
+/// sign where both are zero.
 #[inline]
-pub fn lift_t(org: [f32; 3], dir: [f32; 3], p: &[[f32; 3]; 3], t: f32) -> f32 {
-    let tt = f64::from(t);
-    let mut entry = f64::NEG_INFINITY;
-    for k in 0..3 {
-        let d = f64::from(dir[k]);
-        let near = if d > 0.0 {
-            min_x86(min_x86(p[0][k], p[1][k]), p[2][k])
-        } else if d < 0.0 {
-            max_x86(max_x86(p[0][k], p[1][k]), p[2][k])
-        } else {
-            continue;
-        };
-        let gap = f64::from(near) - f64::from(org[k]);
-        // Short of the near plane: `t·d` has not yet covered the gap, on the ray's side.
-        if (d > 0.0 && tt * d < gap) || (d < 0.0 && tt * d > gap) {
-            entry = entry.max(gap / d);
-        }
-    }
-    if entry > tt {
-        let e = entry as f32;
-        if f64::from(e) > entry {
-            e.next_down()
-        } else {
-            e
-        }
-    } else {
-        t
-    }
+pub fn lift_t(r: &PreparedRay, p: &[[f32; 3]; 3], t: f32) -> f32 {
+    let m = |k: usize| {
+        let inv = super::inv(r.dir[k]);
+        let d = |i: usize| (p[i][k] - r.org[k]) * inv;
+        min_x86(min_x86(d(0), d(1)), d(2))
+    };
+    let e = max_x86(m(r.k[0]), m(r.k[1])) + 0.0;
+    max_x86(e, t)
 }
 
-/// [`lift_t`] on the lanes of an 8-wide test's `hit` mask, lane `l` being the ray `ray(l)`
-/// (origin, direction) on the triangle `p(l)`: the new mask and t. A lifted lane stays a
-/// hit only while its t is within `tmax`. Shared by the layer's 8-triangle test and DACRT's
-/// 8-ray leaf test, so that both decide exactly as the scalar test does.
+/// [`lift_t`] on 8 lanes: `rel[i][j]` holds `p[i][k] - org[k]` and `inv[j]` the reciprocal
+/// direction component of the axis `k` that is `j`-th in the lane's ray order `kx, ky`.
+/// Shared by the layer's 8-triangle test and DACRT's 8-ray leaf test, so that both decide
+/// exactly as the scalar test does.
 #[inline(always)]
-pub fn lift_hits<S: Simd>(
-    s: S,
-    hit: S::M8,
-    t: S::F8,
-    tmax: S::F8,
-    ray: impl Fn(usize) -> ([f32; 3], [f32; 3]),
-    p: impl Fn(usize) -> [[f32; 3]; 3],
-) -> (S::M8, S::F8) {
-    let mut rest = hit.bitmask();
-    if rest == 0 {
-        return (hit, t);
-    }
-    let mut ts = t.to_array();
-    let mut lifted = false;
-    while rest != 0 {
-        let l = rest.trailing_zeros() as usize;
-        rest &= rest - 1;
-        let (org, dir) = ray(l);
-        let x = lift_t(org, dir, &p(l), ts[l]);
-        if x.to_bits() != ts[l].to_bits() {
-            ts[l] = x;
-            lifted = true;
-        }
-    }
-    if !lifted {
-        return (hit, t);
-    }
-    let t = s.load_f8(&ts);
-    (hit & t.le(tmax), t)
+pub fn lift8<S: Simd>(s: S, rel: [[S::F8; 2]; 3], inv: [S::F8; 2], t: S::F8) -> S::F8 {
+    entry8(s, rel, inv).max(t)
+}
+
+/// The entry `e` of [`lift8`], which does not depend on t: the tests compute it as soon as
+/// the vertices are loaded, so that the six differences it reads die early (kept live
+/// across the division they spilled registers, which cost more than the arithmetic), and
+/// apply it with one `max` at the end.
+#[inline(always)]
+pub fn entry8<S: Simd>(s: S, rel: [[S::F8; 2]; 3], inv: [S::F8; 2]) -> S::F8 {
+    let m = |j: usize| {
+        let (a, b, c) = (rel[0][j] * inv[j], rel[1][j] * inv[j], rel[2][j] * inv[j]);
+        a.min(b).min(c)
+    };
+    m(0).max(m(1)) + s.splat_f8(0.0)
 }
 
 /// The f64 fallback for the lanes of `zero`, on arrays (cold; kept out of the kernel so the
@@ -238,7 +219,7 @@ impl TriTest for Watertight {
         let rcp = 1.0 / det;
         let t = tt * rcp;
         if det != 0.0 && t >= r.tmin && t <= tmax {
-            let t = lift_t(r.org, r.dir, p, t);
+            let t = lift_t(r, p, t);
             if t > tmax {
                 return None;
             }
@@ -274,13 +255,20 @@ impl TriTest for Watertight {
         let [sx, sy, sz] = r.shear;
         let [ox, oy, oz] = r.org_k;
         let ld = |i: usize, k: usize| s.load_f8(&tri.p[i][k]);
-        let (a_z, b_z, c_z) = (ld(0, kz) - oz, ld(1, kz) - oz, ld(2, kz) - oz);
-        let ax = (ld(0, kx) - ox) - sx * a_z;
-        let ay = (ld(0, ky) - oy) - sy * a_z;
-        let bx = (ld(1, kx) - ox) - sx * b_z;
-        let by = (ld(1, ky) - oy) - sy * b_z;
-        let cx = (ld(2, kx) - ox) - sx * c_z;
-        let cy = (ld(2, ky) - oy) - sy * c_z;
+        // Vertex minus origin, `rel[i]` in the order kx, ky, kz.
+        let rel = |i: usize| [ld(i, kx) - ox, ld(i, ky) - oy, ld(i, kz) - oz];
+        let rel = [rel(0), rel(1), rel(2)];
+        // The decision t's entry (`lift_t`), from the minor axes' differences.
+        let minor = |i: usize| [rel[i][0], rel[i][1]];
+        let inv = [s.splat_f8(r.inv_k[0]), s.splat_f8(r.inv_k[1])];
+        let entry = entry8(s, [minor(0), minor(1), minor(2)], inv);
+        let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
+        let ax = rel[0][0] - sx * a_z;
+        let ay = rel[0][1] - sy * a_z;
+        let bx = rel[1][0] - sx * b_z;
+        let by = rel[1][1] - sy * b_z;
+        let cx = rel[2][0] - sx * c_z;
+        let cy = rel[2][1] - sy * c_z;
         let mut u = cx * by - cy * bx;
         let mut v = ax * cy - ay * cx;
         let mut w = bx * ay - by * ax;
@@ -309,9 +297,10 @@ impl TriTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
+        // The decision t (`lift_t`): unchanged but for slivers and hits on a box's plane.
         let hit = inside & det.ne(zero) & t.ge(r.tmin) & t.le(tmax);
-        // The decision t of every hit lane (`lift_t`): unchanged but for slivers.
-        let (hit, t) = lift_hits(s, hit, t, tmax, |_| (r.ray[0], r.ray[1]), |l| tri.lane(l));
+        let t = entry.max(t);
+        let hit = hit & t.le(tmax);
         // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
         (hit, t, v * rcp, w * rcp)
     }
