@@ -15,7 +15,7 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{lift8, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{edges8, entry8, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -108,21 +108,6 @@ pub struct WtLanes<S: Simd> {
     inv: [S::F8; 2],
 }
 
-/// U, V, W in f64, rounded to f32, for the lanes of `zero` (the layer's fallback when one
-/// comes out exactly 0 in f32).
-#[cold]
-#[inline(never)]
-fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
-    for lane in 0..8 {
-        if zero >> lane & 1 == 1 {
-            let [ax, ay, bx, by, cx, cy] = xy.map(|a| f64::from(a[lane]));
-            uvw[0][lane] = (cx * by - cy * bx) as f32;
-            uvw[1][lane] = (ax * cy - ay * cx) as f32;
-            uvw[2][lane] = (bx * ay - by * ax) as f32;
-        }
-    }
-}
-
 impl LeafTest for Watertight {
     const PRECISION: Precision = Precision::Watertight;
     type Scalar = crate::accel::triangle::Watertight;
@@ -173,33 +158,9 @@ impl LeafTest for Watertight {
         // Vertex minus origin, `rel[i]` in the lane's order kx, ky, kz.
         let rel = |p: S::F8| [p.permute(ix) - ox, p.permute(iy) - oy, p.permute(iz) - oz];
         let rel = [rel(p0), rel(p1), rel(p2)];
+        let [u, v, w] = edges8(s, &rel, sx, sy);
         let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
-        let ax = rel[0][0] - sx * a_z;
-        let ay = rel[0][1] - sy * a_z;
-        let bx = rel[1][0] - sx * b_z;
-        let by = rel[1][1] - sy * b_z;
-        let cx = rel[2][0] - sx * c_z;
-        let cy = rel[2][1] - sy * c_z;
-        let mut u = cx * by - cy * bx;
-        let mut v = ax * cy - ay * cx;
-        let mut w = bx * ay - by * ax;
         let zero = s.splat_f8(0.0);
-        let z = u.eq(zero) | v.eq(zero) | w.eq(zero);
-        if z.any() {
-            let mut uvw = [u.to_array(), v.to_array(), w.to_array()];
-            let xy = [
-                ax.to_array(),
-                ay.to_array(),
-                bx.to_array(),
-                by.to_array(),
-                cx.to_array(),
-                cy.to_array(),
-            ];
-            fallback8(z.bitmask(), xy, &mut uvw);
-            u = s.load_f8(&uvw[0]);
-            v = s.load_f8(&uvw[1]);
-            w = s.load_f8(&uvw[2]);
-        }
         let inside = u.min(v).min(w).ge(zero) | u.max(v).max(w).le(zero);
         if inside.none() {
             return Hit8::miss(inside, zero);
@@ -210,8 +171,7 @@ impl LeafTest for Watertight {
         let t = tt * rcp;
         let mask = inside & det.ne(zero) & t.ge(tmin) & t.le(tmax);
         // The layer's decision t (`lift_t`), per ray.
-        let minor = |i: usize| [rel[i][0], rel[i][1]];
-        let t = lift8(s, [minor(0), minor(1), minor(2)], r.inv, t);
+        let t = entry8(s, &rel, r.inv).max(t);
         let mask = mask & t.le(tmax);
         Hit8 {
             mask,

@@ -761,7 +761,7 @@ fn a_slivers_decision_t_is_not_before_its_box() {
     let h = Watertight::intersect_lane(&r, &p, ray.tmax).expect("a hit");
     let entry = box_entry(&ray, &p);
     assert!(near_entry(h.t, entry), "t {} entry {entry}", h.t);
-    let paper = intersect_unrefined_paper(&r, &p);
+    let paper = Watertight::paper_lane(&r, &p, ray.tmax).expect("a hit").t;
     assert!(
         f64::from(paper) < entry * (1.0 - 1e-6),
         "the paper's t {paper} is short"
@@ -773,20 +773,6 @@ fn a_slivers_decision_t_is_not_before_its_box() {
 /// lie short of the box by its sum's rounding.
 fn near_entry(t: f32, entry: f64) -> bool {
     (f64::from(t) - entry).abs() <= entry.abs() / f64::from(1u32 << 21)
-}
-
-/// The watertight test's own t, before the decision lift: the hit's t with `lift_t` undone
-/// is not observable, so it is recomputed here with the paper's formula in f32.
-fn intersect_unrefined_paper(r: &PreparedRay, p: &[[f32; 3]; 3]) -> f32 {
-    let [kx, ky, kz] = r.k;
-    let [sx, sy, sz] = r.shear;
-    let rel = |i: usize, k: usize| p[i][k] - r.org[k];
-    let (a_z, b_z, c_z) = (rel(0, kz), rel(1, kz), rel(2, kz));
-    let (ax, ay) = (rel(0, kx) - sx * a_z, rel(0, ky) - sy * a_z);
-    let (bx, by) = (rel(1, kx) - sx * b_z, rel(1, ky) - sy * b_z);
-    let (cx, cy) = (rel(2, kx) - sx * c_z, rel(2, ky) - sy * c_z);
-    let (u, v, w) = (cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax);
-    (u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z)) * (1.0 / (u + v + w))
 }
 
 /// On random slivers and fat triangles the decision t is never before the triangle's box

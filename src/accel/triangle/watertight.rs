@@ -133,26 +133,55 @@ pub fn lift_t(r: &PreparedRay, p: &[[f32; 3]; 3], t: f32) -> f32 {
     max_x86(e, t)
 }
 
-/// [`lift_t`] on 8 lanes: `rel[i][j]` holds `p[i][k] - org[k]` and `inv[j]` the reciprocal
-/// direction component of the axis `k` that is `j`-th in the lane's ray order `kx, ky`.
-/// Shared by the layer's 8-triangle test and DACRT's 8-ray leaf test, so that both decide
-/// exactly as the scalar test does.
+/// The entry `e` of [`lift_t`] on 8 lanes, from `rel[i][j]` = `p[i][k] - org[k]` for the
+/// axis `k` that is `j`-th in the lane's ray order `kx, ky, kz` (only `kx`, `ky` are read)
+/// and `inv[j]`, the reciprocal direction ([`inv`](super::inv)) of `kx`, `ky`; the
+/// decision t is then `e.max(t)`. Shared by the layer's 8-triangle test and DACRT's 8-ray
+/// leaf test, so that both decide exactly as the scalar test does. It does not depend on
+/// t, so the layer's test computes it as soon as the vertices are loaded: the six
+/// differences it reads then die early (kept live across the division they spilled
+/// registers, which cost more than the arithmetic).
 #[inline(always)]
-pub fn lift8<S: Simd>(s: S, rel: [[S::F8; 2]; 3], inv: [S::F8; 2], t: S::F8) -> S::F8 {
-    entry8(s, rel, inv).max(t)
-}
-
-/// The entry `e` of [`lift8`], which does not depend on t: the tests compute it as soon as
-/// the vertices are loaded, so that the six differences it reads die early (kept live
-/// across the division they spilled registers, which cost more than the arithmetic), and
-/// apply it with one `max` at the end.
-#[inline(always)]
-pub fn entry8<S: Simd>(s: S, rel: [[S::F8; 2]; 3], inv: [S::F8; 2]) -> S::F8 {
+pub fn entry8<S: Simd>(s: S, rel: &[[S::F8; 3]; 3], inv: [S::F8; 2]) -> S::F8 {
     let m = |j: usize| {
         let (a, b, c) = (rel[0][j] * inv[j], rel[1][j] * inv[j], rel[2][j] * inv[j]);
         a.min(b).min(c)
     };
     m(0).max(m(1)) + s.splat_f8(0.0)
+}
+
+/// The edge functions `U, V, W` of 8 lanes from `rel` (vertex `i` minus the origin, in the
+/// lane's ray order `kx, ky, kz`) and the shear `sx, sy`, with the paper's f64 fallback
+/// where one is exactly 0: the same operations as the scalar test, shared by the layer's
+/// 8-triangle test and DACRT's 8-ray leaf test.
+#[inline(always)]
+pub fn edges8<S: Simd>(s: S, rel: &[[S::F8; 3]; 3], sx: S::F8, sy: S::F8) -> [S::F8; 3] {
+    let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
+    let ax = rel[0][0] - sx * a_z;
+    let ay = rel[0][1] - sy * a_z;
+    let bx = rel[1][0] - sx * b_z;
+    let by = rel[1][1] - sy * b_z;
+    let cx = rel[2][0] - sx * c_z;
+    let cy = rel[2][1] - sy * c_z;
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    let zero = s.splat_f8(0.0);
+    let z = u.eq(zero) | v.eq(zero) | w.eq(zero);
+    if z.none() {
+        return [u, v, w];
+    }
+    let mut uvw = [u.to_array(), v.to_array(), w.to_array()];
+    let xy = [
+        ax.to_array(),
+        ay.to_array(),
+        bx.to_array(),
+        by.to_array(),
+        cx.to_array(),
+        cy.to_array(),
+    ];
+    fallback8(z.bitmask(), xy, &mut uvw);
+    [s.load_f8(&uvw[0]), s.load_f8(&uvw[1]), s.load_f8(&uvw[2])]
 }
 
 /// The f64 fallback for the lanes of `zero`, on arrays (cold; kept out of the kernel so the
@@ -177,21 +206,11 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
     }
 }
 
-impl TriTest for Watertight {
-    const PRECISION: Precision = Precision::Watertight;
-
+impl Watertight {
+    /// The paper's test on one triangle: its hit with the paper's own t, before the
+    /// decision lift ([`lift_t`]) that `intersect_lane` applies.
     #[inline]
-    fn lane_data(tri: &Triangle) -> [[f32; 3]; 3] {
-        tri.v
-    }
-
-    #[inline(always)]
-    fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
-        refined_t(ray, p, t)
-    }
-
-    #[inline]
-    fn intersect_lane(r: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit> {
+    pub(super) fn paper_lane(r: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit> {
         let [kx, ky, kz] = r.k;
         let [sx, sy, sz] = r.shear;
         let rel = |i: usize, k: usize| p[i][k] - r.org[k];
@@ -218,19 +237,32 @@ impl TriTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = 1.0 / det;
         let t = tt * rcp;
-        if det != 0.0 && t >= r.tmin && t <= tmax {
-            let t = lift_t(r, p, t);
-            if t > tmax {
-                return None;
-            }
-            Some(TriHit {
-                t,
-                u: v * rcp,
-                v: w * rcp,
-            })
-        } else {
-            None
-        }
+        (det != 0.0 && t >= r.tmin && t <= tmax).then_some(TriHit {
+            t,
+            u: v * rcp,
+            v: w * rcp,
+        })
+    }
+}
+
+impl TriTest for Watertight {
+    const PRECISION: Precision = Precision::Watertight;
+
+    #[inline]
+    fn lane_data(tri: &Triangle) -> [[f32; 3]; 3] {
+        tri.v
+    }
+
+    #[inline(always)]
+    fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
+        refined_t(ray, p, t)
+    }
+
+    #[inline]
+    fn intersect_lane(r: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit> {
+        let h = Self::paper_lane(r, p, tmax)?;
+        let t = lift_t(r, p, h.t);
+        (t <= tmax).then_some(TriHit { t, ..h })
     }
 
     #[inline(always)]
@@ -259,36 +291,11 @@ impl TriTest for Watertight {
         let rel = |i: usize| [ld(i, kx) - ox, ld(i, ky) - oy, ld(i, kz) - oz];
         let rel = [rel(0), rel(1), rel(2)];
         // The decision t's entry (`lift_t`), from the minor axes' differences.
-        let minor = |i: usize| [rel[i][0], rel[i][1]];
         let inv = [s.splat_f8(r.inv_k[0]), s.splat_f8(r.inv_k[1])];
-        let entry = entry8(s, [minor(0), minor(1), minor(2)], inv);
+        let entry = entry8(s, &rel, inv);
+        let [u, v, w] = edges8(s, &rel, sx, sy);
         let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
-        let ax = rel[0][0] - sx * a_z;
-        let ay = rel[0][1] - sy * a_z;
-        let bx = rel[1][0] - sx * b_z;
-        let by = rel[1][1] - sy * b_z;
-        let cx = rel[2][0] - sx * c_z;
-        let cy = rel[2][1] - sy * c_z;
-        let mut u = cx * by - cy * bx;
-        let mut v = ax * cy - ay * cx;
-        let mut w = bx * ay - by * ax;
         let zero = s.splat_f8(0.0);
-        let z = u.eq(zero) | v.eq(zero) | w.eq(zero);
-        if z.any() {
-            let mut uvw = [u.to_array(), v.to_array(), w.to_array()];
-            let xy = [
-                ax.to_array(),
-                ay.to_array(),
-                bx.to_array(),
-                by.to_array(),
-                cx.to_array(),
-                cy.to_array(),
-            ];
-            fallback8(z.bitmask(), xy, &mut uvw);
-            u = s.load_f8(&uvw[0]);
-            v = s.load_f8(&uvw[1]);
-            w = s.load_f8(&uvw[2]);
-        }
         let inside = u.min(v).min(w).ge(zero) | u.max(v).max(w).le(zero);
         if inside.none() {
             return (inside, zero, zero, zero);
