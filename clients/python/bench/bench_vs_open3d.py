@@ -117,6 +117,8 @@ def main():
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--accel", default=None, help="rayd accelerator (default: auto)")
+    ap.add_argument("--precision", default=None,
+                    help="rayd ray/triangle test, fast or watertight (default: the server's, watertight)")
     ap.add_argument("--url", help="an already running server (its --threads is yours to match)")
     ap.add_argument("--rayd-bin", type=Path, default=REPO / "target" / "release" / "rayd")
     args = ap.parse_args()
@@ -160,19 +162,19 @@ def main():
 
         # rayd through the client: one warm-up (the structure is built and cached), then runs.
         build_ms = primary.server_timing.get("build", float("nan"))  # the first trace built
-        scene.trace(o, d, accel=args.accel)
+        scene.trace(o, d, accel=args.accel, precision=args.precision)
         server_ms = []
 
         def rayd_trace():
-            h = scene.trace(o, d, accel=args.accel)
+            h = scene.trace(o, d, accel=args.accel, precision=args.precision)
             server_ms.append(h.server_timing.get("trace", float("nan")))
             return h
 
         t_trace, hits = timed(rayd_trace, args.runs)
         version = scene.version
-        scene.cast_rays(rays6[:1024], accel=args.accel, version=version)  # triangles fetched
+        scene.cast_rays(rays6[:1024], accel=args.accel, version=version, precision=args.precision)  # triangles fetched
         t_cast, ours = timed(
-            lambda: scene.cast_rays(rays6, accel=args.accel, version=version), args.runs
+            lambda: scene.cast_rays(rays6, accel=args.accel, version=version, precision=args.precision), args.runs
         )
 
         # Open3D in process, same triangles, same rays, same threads.
@@ -205,7 +207,7 @@ def main():
     print(f"scene {args.scene.name}: {len(tris)} triangles + 12 of the room; {n} diffuse rays "
           f"({args.width}x{args.height}, bounce 1, all hit); threads {args.threads}; "
           f"{platform.processor() or platform.machine()}, {os.cpu_count()} cpus; "
-          f"rayd accel {accel} (build {build_ms:.1f} ms in the primary trace, untimed); open3d {o3d.__version__}; "
+          f"rayd accel {accel}, precision {args.precision or 'watertight'} (build {build_ms:.1f} ms in the primary trace, untimed); open3d {o3d.__version__}; "
           f"median of {args.runs}; load {os.getloadavg()[0]:.1f}")
     print()
     print("| tracer | what is timed | ms | Mray/s |")

@@ -432,7 +432,7 @@ class Scene:
         return Job(self.client, info, expect=(HIT_FORMATS[params["hit"]],
                                               (len(body) - 16) // 32))
 
-    def cast_rays(self, rays, *, accel=None, version=None, time=None) -> dict:
+    def cast_rays(self, rays, *, accel=None, version=None, time=None, precision=None) -> dict:
         """Open3D's ``RaycastingScene.cast_rays`` against this scene.
 
         ``rays`` is ``(..., 6)``: origin and direction (any leading shape, float32 or
@@ -444,7 +444,8 @@ class Scene:
         ``primitive_normals`` (float32 ``(..., 3)``, unit geometric normals
         ``(v1-v0) × (v2-v0)`` as Embree reports them, not turned to the ray; 0).
         Normals are computed here from the triangles of the version traced
-        (:meth:`triangles`)."""
+        (:meth:`triangles`). ``accel``, ``version``, ``time`` and ``precision`` are
+        :meth:`trace`'s."""
         if hasattr(rays, "numpy") and not isinstance(rays, np.ndarray):
             rays = rays.numpy()
         r = np.asarray(rays, dtype=np.float32)
@@ -455,13 +456,14 @@ class Scene:
         if version is None:
             version = self.version  # pinned, so the normals are those of the version traced
         hits = self.trace(flat[:, :3], flat[:, 3:], 0.0, np.inf, accel=accel,
-                          version=version, time=time)
+                          version=version, time=time, precision=precision)
         prim = hits["prim"]
         hit = prim != MISS_PRIM
         # One normal per triangle and version, then a gather per ray; misses index the
-        # extra zero row at the end.
+        # extra zero row at the end. (`np.take` gathers rows several times faster than
+        # fancy indexing: 2 against 9 ms for 786K rays.)
         table = self._normals(version, time)
-        normals = table[np.where(hit, prim, table.shape[0] - 1)]
+        normals = np.take(table, np.where(hit, prim, table.shape[0] - 1), axis=0)
         return {
             "t_hit": np.array(hits["t"]).reshape(lead),
             "geometry_ids": np.where(hit, np.uint32(0), np.uint32(MISS_PRIM)).reshape(lead),
