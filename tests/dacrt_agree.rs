@@ -139,6 +139,15 @@ fn variants() -> Vec<(&'static str, DacrtOptions, usize)> {
         ("dacrt-shared-top", shared_top(small_leaves), 2),
         ("dacrt-sampled-shared-top", shared_top(sampled_small), 3),
         ("dacrt-no-top", root_forks_no_top(small_leaves), 2),
+        // One group of rays per thread from the start, groups of unequal length (5) and
+        // many groups (8), with and without the shared top.
+        ("dacrt-groups-8", shared_top(small_leaves), 8),
+        (
+            "dacrt-sampled-groups-5",
+            root_forks_no_top(sampled_small),
+            5,
+        ),
+        ("dacrt-sampled-groups-7", shared_top(sampled_small), 7),
         (
             "dacrt-par-tris",
             tris_split(forced_parallel(small_leaves)),
@@ -540,7 +549,7 @@ fn memory_stays_within_the_papers_budget() {
     let r = rays.len();
     let mut hits = vec![Hit::MISS; r];
     let mut flags = vec![0u8; r];
-    for threads in [1usize, 2] {
+    for threads in [1usize, 2, 4] {
         for opts in [DacrtOptions::afra(), DacrtOptions::nabata()] {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)

@@ -17,8 +17,9 @@
 //! [`top`]). "Building" one is the per-frame precompute only, so a
 //! new frame (new positions for the same or other triangles) is simply a new build.
 //!
-//! Memory during a trace (T triangles, R rays): 48·T for the precompute (held between
-//! traces), 32·R for the ray records, 4·T for the one shared id array, plus the fork copies
+//! Memory during a trace (T triangles, R rays, P threads): 48·T for the precompute (held
+//! between traces), 32·R for the ray records, 4·T·(P + 1) for the id arrays (the batch's
+//! and one per group of its index split), plus the fork copies
 //! (at most [`options::Parallelism::fork_budget`]·R records at 52 bytes). The hit slots are
 //! the caller's output array, used as scratch while tracing.
 
@@ -52,6 +53,15 @@ use split::Node;
 use stats::{lap, Stats};
 use traverse::{step, Ctx};
 use tris::TriData;
+
+/// What every group of a batch's index split shares ([`Dacrt::groups`]).
+struct Group<'a> {
+    /// The batch's triangle ids, partitioned as `top` says where it is given.
+    ids: &'a [u32],
+    top: Option<&'a top::Top>,
+    /// Rays per group.
+    chunk: usize,
+}
 
 /// A DACRT accelerator: the frame's triangle precompute and the traversal's settings.
 pub struct Dacrt {
@@ -128,20 +138,23 @@ impl Dacrt {
             let threads = rayon::current_num_threads();
             let p = &self.options.parallel;
             let parallel = p.enabled && threads > 1;
-            // With several threads the batch starts as a ray-split fork by index: the two
-            // halves (image bands for camera rays) are filtered against the root box and
-            // traced at once, so that neither the root filter nor the fork's own partition
-            // by slot runs on one thread over all rays. Each half counts its slots from 0.
-            let pivot = if parallel && rays.len() >= 2 * p.fork_min_rays {
-                rays.len() / 2
+            // With several threads the batch starts split by index into one group of rays
+            // per thread (image bands for camera rays), each filtered against the root box
+            // and traced at once, so that no thread waits while others filter or partition
+            // the whole batch by slot: split in halves, as ray-split forks would, the top
+            // levels ran on 2, 4, 8 threads in turn and half of 16 threads' time was idle
+            // (BENCHMARKS §11.1, §11.3). Each group counts its slots from 0.
+            let groups = if parallel {
+                (rays.len() / p.fork_min_rays).clamp(1, threads)
             } else {
-                rays.len()
+                1
             };
+            let chunk = rays.len().div_ceil(groups);
             let mut recs: Vec<RayRec> = rays
                 .par_iter()
                 .enumerate()
                 .map(|(i, r)| {
-                    let slot = if i < pivot { i } else { i - pivot };
+                    let slot = i % chunk;
                     let mut rec = RayRec::new(r, slot as u32);
                     // Empty (or NaN) intervals never hit: such rays start inactive.
                     if !interval_nonempty(r) {
@@ -166,20 +179,14 @@ impl Dacrt {
                     ForkSplit::Rays => p.data_min_rays,
                 },
             };
-            let (h1, h2) = hits.split_at_mut(pivot);
-            let (t1, t2) = if tmin.is_empty() {
-                (&tmin[..], &tmin[..])
-            } else {
-                tmin.split_at(pivot)
-            };
             let root = Node {
                 bounds: self.tris.bounds,
                 cents: self.tris.centroids,
             };
             let mut ids = vec![0u32; live];
             self.tris.fill_ids(&mut ids);
-            if pivot == rays.len() {
-                self.root::<T>(&ctx, &mut recs, h1, t1, &mut ids, None);
+            if groups == 1 {
+                self.root::<T>(&ctx, &mut recs, hits, &tmin, &mut ids, None);
             } else {
                 // The top levels' partitions, made once for both halves (`top.rs`).
                 let t0 = ctx.clock();
@@ -203,25 +210,12 @@ impl Dacrt {
                         shared.as_ref().map_or(0, |t| t.count()) as u64,
                     );
                 }
-                let mut ids2 = ids.clone();
-                let (r1, r2) = recs.split_at_mut(pivot);
-                let shared = shared.as_ref();
-                let (_, migrated) = parallel::join_tracked(
-                    &ctx,
-                    || self.root::<T>(&ctx, r1, h1, t1, &mut ids, shared),
-                    |migrated| {
-                        self.root::<T>(&ctx, r2, h2, t2, &mut ids2, shared);
-                        migrated
-                    },
-                );
-                if let Some(s) = &stats {
-                    let c = if migrated {
-                        &s.forks_stolen
-                    } else {
-                        &s.forks_local
-                    };
-                    Stats::add(c, 1);
-                }
+                let group = Group {
+                    ids: &ids,
+                    top: shared.as_ref(),
+                    chunk,
+                };
+                self.groups::<T>(&ctx, &group, &mut recs, hits, &tmin);
             }
         }
         if finish {
@@ -245,6 +239,48 @@ impl Dacrt {
                 "{}",
                 s.summary(self.name, rays.len(), t0.elapsed().as_secs_f64())
             );
+        }
+    }
+
+    /// Traces `recs` (whole groups of `group.chunk` rays, the last one maybe shorter) one
+    /// group per thread: halves of the groups at a time, through [`parallel::join_tracked`]
+    /// so that the forks' bookkeeping sees every thread busy, each group on its own copy of
+    /// the (top-partitioned) id array and its own slice of the hit slots.
+    fn groups<T: LeafTest>(
+        &self,
+        ctx: &Ctx,
+        group: &Group,
+        recs: &mut [RayRec],
+        hits: &mut [Hit],
+        tmin: &[f32],
+    ) {
+        if recs.len() <= group.chunk {
+            let mut ids = group.ids.to_vec();
+            return self.root::<T>(ctx, recs, hits, tmin, &mut ids, group.top);
+        }
+        let mid = recs.len().div_ceil(group.chunk) / 2 * group.chunk;
+        let (r1, r2) = recs.split_at_mut(mid);
+        let (h1, h2) = hits.split_at_mut(mid);
+        let (t1, t2) = if tmin.is_empty() {
+            (tmin, tmin)
+        } else {
+            tmin.split_at(mid)
+        };
+        let (_, migrated) = parallel::join_tracked(
+            ctx,
+            || self.groups::<T>(ctx, group, r1, h1, t1),
+            |migrated| {
+                self.groups::<T>(ctx, group, r2, h2, t2);
+                migrated
+            },
+        );
+        if let Some(s) = ctx.stats {
+            let c = if migrated {
+                &s.forks_stolen
+            } else {
+                &s.forks_local
+            };
+            Stats::add(c, 1);
         }
     }
 
