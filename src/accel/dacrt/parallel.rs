@@ -25,7 +25,8 @@
 //!   two coherent halves that traverse the same node at once (see [`fork_rays`]); each half
 //!   keeps its own front-to-back culling, at the price of partitioning the node's triangles
 //!   twice — except in the top levels, which a batch partitions once for all threads
-//!   before its first split (`top.rs`).
+//!   before its first split (`top.rs`). A batch itself starts split into one group of
+//!   rays per thread (`Dacrt::groups`), so these forks only rebalance the work later.
 //!
 //! Forks are made only when a thread is idle ([`Workers`]), so the second half is almost
 //! always taken by another thread at once.

@@ -1,13 +1,14 @@
 //! The top levels of the recursion, partitioned once for all threads.
 //!
-//! With several threads a batch starts as a ray split: the two halves of the rays traverse
-//! the same root at once (`parallel.rs`). Without sharing, each half partitions the
-//! triangles of every node it reaches on its own, and near the root both reach every node,
-//! so the partitioning of the top levels — the longest triangle ranges — is done twice.
+//! With several threads a batch starts as a ray split: one group of rays per thread, all
+//! traversing the same root at once (`Dacrt::groups`). Without sharing, each group
+//! partitions the triangles of every node it reaches on its own, and near the root every
+//! group reaches every node, so the partitioning of the top levels — the longest triangle
+//! ranges — is done once per group.
 //! Here the triangles are partitioned once, before the split, down to nodes of
 //! [`super::Parallelism::top_min_tris`] triangles, with both subtrees of every node built
 //! at once (task parallelism) and the longest ranges binned and partitioned data-parallel
-//! (`parallel::bins_par`, `partition_bins_par`). Every half then receives a copy of the
+//! (`parallel::bins_par`, `partition_bins_par`). Every group then receives a copy of the
 //! partitioned id array and this tree, and its steps in the top levels only order the
 //! children, decide the skips and filter rays; below the tree they partition their own
 //! copy as before.
