@@ -188,7 +188,7 @@ impl Dacrt {
             if groups == 1 {
                 self.root::<T>(&ctx, &mut recs, hits, &tmin, &mut ids, None);
             } else {
-                // The top levels' partitions, made once for both halves (`top.rs`).
+                // The top levels' partitions, made once for every group (`top.rs`).
                 let t0 = ctx.clock();
                 let shared = match p.top_min_tris {
                     0 => None,
