@@ -274,14 +274,7 @@ impl Dacrt {
                 migrated
             },
         );
-        if let Some(s) = ctx.stats {
-            let c = if migrated {
-                &s.forks_stolen
-            } else {
-                &s.forks_local
-            };
-            Stats::add(c, 1);
-        }
+        Stats::fork(ctx.stats, migrated);
     }
 
     /// Filters `recs` against the root box and traces the active ones into `hits` (the

@@ -562,14 +562,7 @@ pub fn fork_rays<T: LeafTest>(
         },
     );
     rebase(r2, pivot);
-    if let Some(s) = ctx.stats {
-        let c = if migrated {
-            &s.forks_stolen
-        } else {
-            &s.forks_local
-        };
-        Stats::add(c, 1);
-    }
+    Stats::fork(ctx.stats, migrated);
     release(ctx, cost);
     true
 }

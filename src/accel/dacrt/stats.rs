@@ -53,6 +53,19 @@ impl Stats {
         c.fetch_add(n, Relaxed);
     }
 
+    /// Counts a fork, by where its second half ran (on a thief when `migrated`).
+    #[inline]
+    pub fn fork(stats: Option<&Stats>, migrated: bool) {
+        if let Some(s) = stats {
+            let c = if migrated {
+                &s.forks_stolen
+            } else {
+                &s.forks_local
+            };
+            Stats::add(c, 1);
+        }
+    }
+
     /// One line for stderr.
     pub fn summary(&self, name: &str, rays: usize, wall_s: f64) -> String {
         let g = |c: &AtomicU64| c.load(Relaxed);
