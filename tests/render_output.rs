@@ -230,6 +230,53 @@ fn the_image_does_not_depend_on_the_thread_count() {
     assert_eq!(encode_exr(&one).unwrap(), encode_exr(&two).unwrap());
 }
 
+/// Waves sized in seconds (the service's, 8192 pixels first, then from the rate), the
+/// per-ray cores' waves (2^16 pixels: two here) and DACRT's (2^18: one here) all give the
+/// same image: a pixel's samples never depend on the wave that holds them.
+#[test]
+fn the_image_does_not_depend_on_the_wave_size() {
+    struct Timed;
+    impl rayd::render::Waves for Timed {
+        type Error = std::convert::Infallible;
+        fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
+            wave();
+            Ok(())
+        }
+        fn wave_seconds(&self) -> f64 {
+            1e-4
+        }
+        fn progress(&self, _fraction: f64) {}
+    }
+    let options = RenderOptions {
+        width: 320,
+        height: 240,
+        integrator: Integrator::Path,
+        bounces: 2,
+        seed: 5,
+        aovs: all_aovs(),
+        ..RenderOptions::default()
+    };
+    let tris = two_quads();
+    let bounds = rayd::scene::bounds_of(&tris);
+    let cam = ViewCamera::choose_from(&look(), &[], bounds, 320.0 / 240.0).unwrap();
+    let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
+    let with = |kind: AccelKind, timed: bool| {
+        let accel = build(kind, &tris, &BuildOptions::default()).unwrap();
+        assert_eq!(accel.large_batches(), kind == AccelKind::Dacrt);
+        let (image, stats) = if timed {
+            render(&tris, accel.as_ref(), &cam, &options, diag, None, &Timed)
+        } else {
+            render(&tris, accel.as_ref(), &cam, &options, diag, None, &AllAtOnce)
+        }
+        .unwrap();
+        assert!(stats.rays > 0);
+        encode_exr(&image).unwrap()
+    };
+    let bvh = with(AccelKind::Mbvh8, false);
+    assert_eq!(bvh, with(AccelKind::Dacrt, false));
+    assert_eq!(bvh, with(AccelKind::Mbvh8, true));
+}
+
 /// Without a camera the view frames the bounds, even for a scene that has cameras.
 #[test]
 fn the_default_view_frames_the_bounds_even_with_scene_cameras() {

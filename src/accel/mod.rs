@@ -229,6 +229,14 @@ pub trait Intersector: Send + Sync {
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
 
+    /// Whether this core traces a batch faster per ray the more rays it holds (DACRT,
+    /// which partitions the triangles anew for every batch), so that a caller choosing
+    /// its batch sizes, the renderer's waves, makes them as large as its memory bound
+    /// allows. The per-ray cores answer each ray alone and say no.
+    fn large_batches(&self) -> bool {
+        false
+    }
+
     /// Takes new world positions for the same triangles (same count, same ids): a TRI1
     /// geometry update, or the next time of an animation. It exists because a frame of
     /// moving geometry should cost a refit (one pass over the triangles and the nodes),

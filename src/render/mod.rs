@@ -238,8 +238,16 @@ pub struct RenderStats {
     pub trace_seconds: f64,
 }
 
-/// Pixels per wave: bounds the memory of one wave's rays and hits (about 12 MiB).
+/// Pixels per wave for a core that wants large batches (DACRT): bounds the memory of one
+/// wave's rays and hits (about 12 MiB).
 const WAVE_PIXELS: usize = 1 << 18;
+
+/// Pixels per wave for the per-ray cores. A wave's buffers (paths, rays, hits, shading
+/// steps: 180–350 bytes a pixel) are written fresh the first time, and every new page is
+/// a fault that serialises on the process's memory map; waves a quarter of DACRT's size
+/// touch a quarter of the memory and reuse it. Path renders of 640×480 took 0.80–0.95×
+/// the time with them, the trace itself 0.95–1.18× (BENCHMARKS §19).
+const BVH_WAVE_PIXELS: usize = 1 << 16;
 
 const BACKGROUND: [f32; 3] = [0.05, 0.06, 0.08];
 
@@ -332,10 +340,15 @@ pub fn render<W: Waves + ?Sized>(
     let mut stats = RenderStats::default();
     let total = n as f64 * spp as f64;
     let mut done = 0.0;
+    let max_wave = if accel.large_batches() {
+        WAVE_PIXELS
+    } else {
+        BVH_WAVE_PIXELS
+    };
     let mut wave_pixels = if waves.wave_seconds().is_finite() {
         FIRST_WAVE_PIXELS
     } else {
-        WAVE_PIXELS
+        max_wave
     };
     let mut scratch = Scratch::default();
     let mut start = 0;
@@ -380,9 +393,9 @@ pub fn render<W: Waves + ?Sized>(
         let target = waves.wave_seconds();
         wave_pixels = if target.is_finite() && seconds > 0.0 {
             let rate = (end - start) as f64 * spp as f64 / seconds;
-            ((rate * target) as usize).clamp(MIN_WAVE_PIXELS, WAVE_PIXELS)
+            ((rate * target) as usize).clamp(MIN_WAVE_PIXELS, max_wave)
         } else {
-            WAVE_PIXELS
+            max_wave
         };
         start = end;
     }
