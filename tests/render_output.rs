@@ -266,7 +266,15 @@ fn the_image_does_not_depend_on_the_wave_size() {
         let (image, stats) = if timed {
             render(&tris, accel.as_ref(), &cam, &options, diag, None, &Timed)
         } else {
-            render(&tris, accel.as_ref(), &cam, &options, diag, None, &AllAtOnce)
+            render(
+                &tris,
+                accel.as_ref(),
+                &cam,
+                &options,
+                diag,
+                None,
+                &AllAtOnce,
+            )
         }
         .unwrap();
         assert!(stats.rays > 0);
