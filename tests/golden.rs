@@ -21,7 +21,7 @@ use rayd::render::surface::Surfaces;
 use rayd::render::{render, Integrator, RenderOptions};
 
 mod common;
-use common::AllAtOnce;
+use common::ALL_AT_ONCE;
 
 /// Largest mean absolute difference over all channels, in 8-bit steps.
 const MEAN_TOLERANCE: f64 = 1.5;
@@ -98,7 +98,7 @@ fn render_case(case: &Case) -> Vec<u8> {
         o,
         diagonal,
         Some(&surfaces),
-        &AllAtOnce,
+        &ALL_AT_ONCE,
     )
     .unwrap();
     encode(&img, ImageFormat::Png).unwrap()

@@ -7,15 +7,15 @@
 use std::path::Path;
 use std::process::Command;
 
-use rayd::accel::{build, AccelKind, BuildOptions};
+use rayd::accel::{build, AccelKind, BuildOptions, Intersector};
 use rayd::geometry::Triangle;
 use rayd::render::camera::{CameraChoice, ViewCamera};
 use rayd::render::image::encode_exr;
 use rayd::render::surface::{PunctualLight, Surfaces};
-use rayd::render::{render, AovSet, Image, Integrator, RenderOptions};
+use rayd::render::{render, AovSet, Image, Integrator, RenderOptions, RenderStats};
 
 mod common;
-use common::AllAtOnce;
+use common::{InPlace, ALL_AT_ONCE};
 
 fn tri(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> Triangle {
     Triangle { v: [a, b, c] }
@@ -34,13 +34,24 @@ fn two_quads() -> Vec<Triangle> {
 
 fn render_with(tris: &[Triangle], options: &RenderOptions, camera: &CameraChoice) -> Image {
     let accel = build(AccelKind::Mbvh8, tris, &BuildOptions::default()).unwrap();
+    render_on(accel.as_ref(), &ALL_AT_ONCE, tris, options, camera, None).0
+}
+
+/// Renders `tris` with `accel` (built over them) in `waves`, through `camera` framed for
+/// `options`' aspect, with `surfaces` or the default material.
+fn render_on(
+    accel: &dyn Intersector,
+    waves: &InPlace,
+    tris: &[Triangle],
+    options: &RenderOptions,
+    camera: &CameraChoice,
+    surfaces: Option<&Surfaces>,
+) -> (Image, RenderStats) {
     let bounds = rayd::scene::bounds_of(tris);
     let aspect = options.width as f64 / options.height as f64;
     let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
     let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
-    render(tris, accel.as_ref(), &cam, options, diag, None, &AllAtOnce)
-        .unwrap()
-        .0
+    render(tris, accel, &cam, options, diag, surfaces, waves).unwrap()
 }
 
 fn look() -> CameraChoice {
@@ -235,18 +246,6 @@ fn the_image_does_not_depend_on_the_thread_count() {
 /// same image: a pixel's samples never depend on the wave that holds them.
 #[test]
 fn the_image_does_not_depend_on_the_wave_size() {
-    struct Timed;
-    impl rayd::render::Waves for Timed {
-        type Error = std::convert::Infallible;
-        fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
-            wave();
-            Ok(())
-        }
-        fn wave_seconds(&self) -> f64 {
-            1e-4
-        }
-        fn progress(&self, _fraction: f64) {}
-    }
     let options = RenderOptions {
         width: 320,
         height: 240,
@@ -257,26 +256,15 @@ fn the_image_does_not_depend_on_the_wave_size() {
         ..RenderOptions::default()
     };
     let tris = two_quads();
-    let bounds = rayd::scene::bounds_of(&tris);
-    let cam = ViewCamera::choose_from(&look(), &[], bounds, 320.0 / 240.0).unwrap();
-    let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
     let with = |kind: AccelKind, timed: bool| {
         let accel = build(kind, &tris, &BuildOptions::default()).unwrap();
         assert_eq!(accel.large_batches(), kind == AccelKind::Dacrt);
-        let (image, stats) = if timed {
-            render(&tris, accel.as_ref(), &cam, &options, diag, None, &Timed)
+        let waves = if timed {
+            InPlace { wave_seconds: 1e-4 }
         } else {
-            render(
-                &tris,
-                accel.as_ref(),
-                &cam,
-                &options,
-                diag,
-                None,
-                &AllAtOnce,
-            )
-        }
-        .unwrap();
+            ALL_AT_ONCE
+        };
+        let (image, stats) = render_on(accel.as_ref(), &waves, &tris, &options, &look(), None);
         assert!(stats.rays > 0);
         encode_exr(&image).unwrap()
     };
@@ -321,20 +309,14 @@ fn render_surfaces(
     surfaces: &Surfaces,
 ) -> Image {
     let accel = build(AccelKind::Mbvh8, tris, &BuildOptions::default()).unwrap();
-    let bounds = rayd::scene::bounds_of(tris);
-    let aspect = options.width as f64 / options.height as f64;
-    let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
-    let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
-    render(
-        tris,
+    render_on(
         accel.as_ref(),
-        &cam,
+        &ALL_AT_ONCE,
+        tris,
         options,
-        diag,
+        camera,
         Some(surfaces),
-        &AllAtOnce,
     )
-    .unwrap()
     .0
 }
 

@@ -66,6 +66,14 @@ impl AccelKind {
         crate::names::Spelled::parse_name(s).ok()
     }
 
+    /// Whether this core traces a batch faster per ray the more rays it holds: DACRT's two,
+    /// which partition the triangles anew for every batch. Callers that choose batch sizes
+    /// (the renderer's waves, the service's streamed traces) make them as large as they can
+    /// for these; the per-ray cores answer each ray alone.
+    pub fn large_batches(self) -> bool {
+        matches!(self, AccelKind::Dacrt | AccelKind::DacrtSampled)
+    }
+
     /// Whether this build of rayd has the accelerator.
     pub fn available(self) -> bool {
         self != AccelKind::Embree || cfg!(feature = "embree")
@@ -229,12 +237,10 @@ pub trait Intersector: Send + Sync {
     /// Bytes this accelerator holds beyond the scene's positions.
     fn bytes(&self) -> usize;
 
-    /// Whether this core traces a batch faster per ray the more rays it holds (DACRT,
-    /// which partitions the triangles anew for every batch), so that a caller choosing
-    /// its batch sizes, the renderer's waves, makes them as large as its memory bound
-    /// allows. The per-ray cores answer each ray alone and say no.
+    /// [`AccelKind::large_batches`] of this core's kind, for callers that hold the core
+    /// itself (the renderer).
     fn large_batches(&self) -> bool {
-        false
+        AccelKind::parse(self.name()).is_some_and(AccelKind::large_batches)
     }
 
     /// Takes new world positions for the same triangles (same count, same ids): a TRI1

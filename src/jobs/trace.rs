@@ -237,7 +237,7 @@ impl Engine {
     /// large), and the batch is large enough to span several segments.
     pub fn streams(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> bool {
         let kind = self.batch_kind(geometry, request, rays);
-        rays > STREAM_SEGMENT_RAYS && !matches!(kind, AccelKind::Dacrt | AccelKind::DacrtSampled)
+        rays > STREAM_SEGMENT_RAYS && !kind.large_batches()
     }
 
     /// Traces a batch of `count` rays that arrives in pieces on `arrivals` (see

@@ -4,18 +4,27 @@
 
 use rayd::geometry::{Hit, Ray, Triangle};
 
-/// A render's waves all run at once, on the calling thread's pool: the renderer's tests need
-/// no scheduler, cancellation or progress.
-pub struct AllAtOnce;
+/// A render's waves run as they come, on the calling thread's pool, each sized to take
+/// `wave_seconds` (infinite: as large as memory allows, as the command line has them; finite:
+/// from the rate so far, as the service has them): the renderer's tests need no scheduler,
+/// cancellation or progress.
+pub struct InPlace {
+    pub wave_seconds: f64,
+}
 
-impl rayd::render::Waves for AllAtOnce {
+/// The command line's waves: as large as memory allows.
+pub const ALL_AT_ONCE: InPlace = InPlace {
+    wave_seconds: f64::INFINITY,
+};
+
+impl rayd::render::Waves for InPlace {
     type Error = std::convert::Infallible;
     fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
         wave();
         Ok(())
     }
     fn wave_seconds(&self) -> f64 {
-        f64::INFINITY
+        self.wave_seconds
     }
     fn progress(&self, _fraction: f64) {}
 }

@@ -333,10 +333,6 @@ impl Intersector for Dacrt {
         self.run(rays, hits, query == Query::Any, true);
     }
 
-    fn large_batches(&self) -> bool {
-        true
-    }
-
     fn occluded(&self, rays: &[Ray], out: &mut [u8]) {
         let mut hits = vec![Hit::MISS; rays.len()];
         self.run(rays, &mut hits, true, false);
