@@ -1,24 +1,21 @@
 #!/usr/bin/env python3
 """Alternate two rayd binaries on one `rayd bench` measurement and report paired ratios.
 
-These machines are shared and noisy: the same binary run twice in a row differs by up to
-~20%. Running A and B alternately (ABBA order), many times, on one pinned core, and taking
-the median of the per-pair ratios B/A cancels most of the drift between pairs.
+A and B run alternately (`ab_pairs.py`), pinned to one core, and the median of the
+per-pair ratios B/A is reported with its quartiles.
 
     scripts/ab_bench.py A B [--pairs 16] [--scene S] [--accel mbvh8] [--sets primary,diffuse2]
         [--cpu 1] [--width 512 --height 384] [--threads 1]
 """
-import argparse
 import re
 import statistics
 import subprocess
 
+import ab_pairs
+
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("a", help="path of binary A (the reference)")
-    ap.add_argument("b", help="path of binary B")
-    ap.add_argument("--pairs", type=int, default=16)
+    ap = ab_pairs.parser(__doc__, 16)
     ap.add_argument("--scene", default="../shared/scenes/dragon-100k.from-ply.glb")
     ap.add_argument("--accel", default="mbvh8")
     ap.add_argument("--build", default="sah")
@@ -38,14 +35,7 @@ def main():
         pat = r"bench: +" + re.escape(args.accel) + r" "
         return [float(l.split()[5]) for l in err.splitlines() if re.match(pat, l)]
 
-    ra, rb = [], []
-    for i in range(args.pairs):
-        if i % 2 == 0:
-            a, b = run(args.a), run(args.b)
-        else:
-            b, a = run(args.b), run(args.a)
-        ra.append(a)
-        rb.append(b)
+    ra, rb = ab_pairs.alternate(run, args.a, args.b, args.pairs)
     for j, name in enumerate(args.sets.split(",")):
         a = [x[j] for x in ra]
         b = [x[j] for x in rb]

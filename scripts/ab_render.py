@@ -2,14 +2,13 @@
 """Alternate two rayd binaries on one `rayd render` frame and report paired shade ratios.
 
 The renderer's counterpart of `ab_bench.py`: A and B render the same frame alternately
-(ABBA order), and the median of the per-pair ratios B/A of `shade_seconds` (the frame's time
-outside the intersector) is reported with both sides' median shade and trace seconds and
-trace shares (trace / (trace + shade)), as BENCHMARKS.md §19 tabulates them.
+(`ab_pairs.py`), and the median of the per-pair ratios B/A of `shade_seconds` (the frame's
+time outside the intersector) is reported with both sides' median shade and trace seconds
+and trace shares (trace / (trace + shade)), as BENCHMARKS.md §19 tabulates them.
 
     scripts/ab_render.py A B [--pairs 6] [--scene S] [--threads 2] [--spp 4] [--bounces 2]
         [--width 640 --height 480] [--integrator path] [-- EXTRA RAYD RENDER ARGS]
 """
-import argparse
 import json
 import os
 import statistics
@@ -17,12 +16,11 @@ import subprocess
 import sys
 import tempfile
 
+import ab_pairs
+
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("a", help="path of binary A (the reference)")
-    ap.add_argument("b", help="path of binary B")
-    ap.add_argument("--pairs", type=int, default=6)
+    ap = ab_pairs.parser(__doc__, 6)
     ap.add_argument("--scene", default="../shared/scenes/DamagedHelmet.glb")
     ap.add_argument("--threads", default="2")
     ap.add_argument("--integrator", default="path")
@@ -45,14 +43,7 @@ def main():
         frame = json.loads(out)["frames"][0]
         return frame["shade_seconds"], frame["trace_seconds"]
 
-    ra, rb = [], []
-    for i in range(args.pairs):
-        if i % 2 == 0:
-            a, b = run(args.a), run(args.b)
-        else:
-            b, a = run(args.b), run(args.a)
-        ra.append(a)
-        rb.append(b)
+    ra, rb = ab_pairs.alternate(run, args.a, args.b, args.pairs)
 
     def med(v, k):
         return statistics.median(x[k] for x in v)
