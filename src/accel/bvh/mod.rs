@@ -72,6 +72,7 @@ pub(crate) use refit::check as check_refit;
 pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};
 pub use stats::BvhStats;
 pub use wide::{Child, Mbvh, Mbvh4, Mbvh8, MultiTri, WideNode};
+pub(crate) use wide::{WideLane, WideTree};
 
 /// Why [`Mbvh::refit`] or [`Bvh2::refit`] refused new positions. The tree is left
 /// unchanged; rebuild it instead.

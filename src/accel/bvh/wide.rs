@@ -315,6 +315,114 @@ impl<const N: usize> Mbvh<N> {
     }
 }
 
+/// The builder's N-wide tree before it is flattened into an [`Mbvh`], for a layout that
+/// places nodes and leaf triangles itself (the MBVH traversal format): going through an
+/// `Mbvh` would write every triangle twice, once into its multi-triangles and once into
+/// the layout's packs, and on a million triangles that copy was a third of a `fast`
+/// build.
+pub(crate) struct WideTree<const N: usize> {
+    built: build::Built<N>,
+    triangles: usize,
+}
+
+/// One lane of a multi-node as [`WideTree::visit`] reports it.
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum WideLane<'a> {
+    /// Unused (the lanes in use come first).
+    Empty,
+    /// A leaf: its triangles, in the order an [`Mbvh`] gathers them.
+    Leaf(LeafRefs<'a>),
+    /// An inner node: its index in the pre-order that [`WideTree::visit`] follows (the
+    /// order of [`Mbvh::nodes`]).
+    Inner(u32),
+}
+
+/// The triangles of one leaf.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LeafRefs<'a>(&'a [Ref]);
+
+impl LeafRefs<'_> {
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    /// The id of the `i`-th triangle.
+    #[inline]
+    pub fn id(&self, i: usize) -> u32 {
+        self.0[i].id()
+    }
+}
+
+impl<const N: usize> WideTree<N> {
+    /// Builds the tree over `triangles` as [`Mbvh::build`] does (same nodes, same leaves,
+    /// same order) on the current rayon pool.
+    pub fn build(triangles: &[Triangle], quality: BuildQuality) -> Self {
+        const { assert!(N == 4 || N == 8, "MBVH width must be 4 or 8") };
+        WideTree {
+            built: build::build::<N>(triangles, quality, Mbvh::<N>::cost()),
+            triangles: triangles.len(),
+        }
+    }
+
+    /// Number of multi-nodes.
+    pub fn node_count(&self) -> usize {
+        self.built.arena[0].sub.nodes as usize
+    }
+
+    /// Number of triangles the tree was built over (ids `0..count`).
+    pub fn triangle_count(&self) -> usize {
+        self.triangles
+    }
+
+    /// Ids of the triangles left out of the tree (degenerate or non-finite), ascending.
+    pub fn excluded(&self) -> &[u32] {
+        &self.built.excluded
+    }
+
+    /// Calls `f(index, depth, boxes, lanes)` for every multi-node in depth-first
+    /// pre-order (root first with depth 1, children in lane order): the order of
+    /// [`Mbvh::nodes`]. Empty lanes have empty boxes.
+    pub fn visit<'s>(&'s self, mut f: impl FnMut(u32, usize, &[Aabb; N], &[WideLane<'s>; N])) {
+        let mut next = 0;
+        visit_node(&self.built.arena, 0, 1, &self.built.refs, &mut next, &mut f);
+    }
+}
+
+/// [`WideTree::visit`] of the subtree of `arena[idx]`, whose index is `*next`.
+fn visit_node<'a, const N: usize>(
+    arena: &'a [BNode<N>],
+    idx: usize,
+    depth: usize,
+    refs: &'a [Ref],
+    next: &mut u32,
+    f: &mut impl FnMut(u32, usize, &[Aabb; N], &[WideLane<'a>; N]),
+) {
+    let b = &arena[idx];
+    let me = *next;
+    *next += 1;
+    let mut lanes = [WideLane::Empty; N];
+    let mut boxes = [Aabb::EMPTY; N];
+    let mut child = me + 1;
+    for lane in 0..b.count {
+        boxes[lane] = b.boxes[lane];
+        let kid = &b.kids[lane];
+        if let Kid::Leaf { begin, n } = *kid {
+            lanes[lane] = WideLane::Leaf(LeafRefs(&refs[begin as usize..(begin + n) as usize]));
+        } else if let Some((a, j)) = inner(arena, kid) {
+            lanes[lane] = WideLane::Inner(child);
+            child += a[j].sub.nodes;
+        }
+    }
+    f(me, depth, &boxes, &lanes);
+    for kid in &b.kids[..b.count] {
+        if let Some((a, j)) = inner(arena, kid) {
+            visit_node(a, j, depth + 1, refs, next, f);
+        }
+    }
+    debug_assert_eq!(*next, child, "a subtree's size is its node count");
+}
+
 /// Writes the subtree of `arena[idx]` into `nodes` (its first slot has global index
 /// `nbase`) and its multi-triangles into `mts` (from global index `mbase`).
 #[allow(clippy::too_many_arguments)]

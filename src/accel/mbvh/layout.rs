@@ -112,13 +112,8 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         let src = tree.nodes();
         let mts = tree.multi_tris();
         let mut nodes = Vec::with_capacity(src.len());
-        // Leaves are laid out densely in "lane space", eight lanes a pack: a leaf of at
-        // most 8 triangles never straddles two packs, a larger one starts a pack. Leaves
-        // come in node order, so small sibling leaves share packs. Lanes 0..8 (pack 0)
-        // are padding, which unused node lanes point at (see `TravNode::child`).
-        let mut leaves: Vec<LeafPlace> = Vec::with_capacity(mts.len());
-        let mut pos = 8usize;
-        let empty = EMPTY_LANE;
+        let mut places = Places::default();
+        let mut leaves: Vec<(u32, Place)> = Vec::with_capacity(mts.len());
         for n in src {
             let mut planes = [[0.0f32; N]; 6];
             planes[..3].copy_from_slice(&n.min);
@@ -126,25 +121,15 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             let mut child = n.child;
             for c in child.iter_mut() {
                 if *c == Child::EMPTY {
-                    *c = empty;
+                    *c = EMPTY_LANE;
                 } else if let Child::Leaf { first, count } = Child::decode(*c) {
                     let k: usize = mts[first as usize..(first + count) as usize]
                         .iter()
                         .map(|mt| mt.lanes())
                         .sum();
-                    assert!((1..=16).contains(&k), "leaf of {k} triangles");
-                    if pos % 8 + k > 8 && !pos.is_multiple_of(8) {
-                        pos = pos.next_multiple_of(8);
-                    }
-                    *c = leaf_id(pos, k);
-                    leaves.push(LeafPlace {
-                        first,
-                        count,
-                        start: pos as u32,
-                        n: k as u32,
-                    });
-                    // A leaf of more than 8 starts a pack, so its tail starts the next.
-                    pos += k;
+                    let place = places.next(k);
+                    *c = place.id();
+                    leaves.push((first, place));
                 }
             }
             nodes.push(TravNode {
@@ -153,12 +138,70 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 pad: [0; N],
             });
         }
-        let packs = fill_packs(mts, &leaves, pos.div_ceil(8));
+        // A leaf's lane j is lane j % N of its (j / N)-th multi-triangle: the builder
+        // fills them in order.
+        let packs = fill_packs(&leaves, places.packs(), |&(first, _), j| {
+            let mt = &mts[first as usize + j / N];
+            (mt.ids[j % N], mt.get(j % N))
+        });
         TravTree {
             nodes,
             packs,
             scale: tree.bounds().max_abs(),
             depth: depth(src),
+            triangles: tree.triangle_count(),
+            excluded: tree.excluded().to_vec(),
+        }
+    }
+
+    /// Lays out the builder's tree directly, writing each triangle once, straight from
+    /// `triangles` into its pack; the result equals `from_mbvh` of the [`bvh::Mbvh`]
+    /// built the same way (a test checks it), without that intermediate copy.
+    pub(crate) fn from_wide(tree: &bvh::WideTree<N>, triangles: &[Triangle]) -> Self {
+        let mut nodes = Vec::with_capacity(tree.node_count());
+        let mut places = Places::default();
+        let mut leaves = Vec::with_capacity(triangles.len() / 4 + 1);
+        let mut deepest = 0;
+        let mut bounds = Aabb::EMPTY;
+        tree.visit(|me, depth, boxes, lanes| {
+            debug_assert_eq!(me as usize, nodes.len(), "nodes come in pre-order");
+            deepest = deepest.max(depth);
+            let mut planes = [[0.0f32; N]; 6];
+            let mut child = [EMPTY_LANE; N];
+            for lane in 0..N {
+                let b = &boxes[lane];
+                for a in 0..3 {
+                    planes[a][lane] = b.min[a];
+                    planes[a + 3][lane] = b.max[a];
+                }
+                if me == 0 {
+                    bounds.union(b);
+                }
+                match lanes[lane] {
+                    bvh::WideLane::Empty => {}
+                    bvh::WideLane::Inner(i) => child[lane] = i as i32,
+                    bvh::WideLane::Leaf(refs) => {
+                        let place = places.next(refs.len());
+                        child[lane] = place.id();
+                        leaves.push((refs, place));
+                    }
+                }
+            }
+            nodes.push(TravNode {
+                planes,
+                child,
+                pad: [0; N],
+            });
+        });
+        let packs = fill_packs(&leaves, places.packs(), |(refs, _), j| {
+            let id = refs.id(j);
+            (id, triangles[id as usize])
+        });
+        TravTree {
+            nodes,
+            packs,
+            scale: bounds.max_abs(),
+            depth: deepest,
             triangles: tree.triangle_count(),
             excluded: tree.excluded().to_vec(),
         }
@@ -276,63 +319,96 @@ fn refit_nodes<const N: usize, T: Send + Sync>(
     all
 }
 
-/// Where one leaf's triangles go: `n` triangles from multi-triangles
-/// `first .. first + count` to global lanes `start .. start + n`.
+/// Where one leaf's triangles go: `n` triangles to global lanes `start .. start + n`.
 #[derive(Clone, Copy, Debug)]
-struct LeafPlace {
-    first: u32,
-    count: u32,
+struct Place {
     start: u32,
     n: u32,
+}
+
+impl Place {
+    /// The leaf's child id.
+    fn id(&self) -> i32 {
+        leaf_id(self.start as usize, self.n as usize)
+    }
+}
+
+/// Places leaves densely in "lane space", eight lanes a pack, in the order they come: a
+/// leaf of at most 8 triangles never straddles two packs, a larger one starts a pack.
+/// Leaves come in node order, so small sibling leaves share packs. Lanes 0..8 (pack 0)
+/// are padding, which unused node lanes point at (see [`TravNode::child`]).
+struct Places {
+    pos: usize,
+}
+
+impl Default for Places {
+    fn default() -> Self {
+        Places { pos: 8 }
+    }
+}
+
+impl Places {
+    /// The place of the next leaf, of `k` triangles.
+    fn next(&mut self, k: usize) -> Place {
+        assert!((1..=16).contains(&k), "leaf of {k} triangles");
+        if self.pos % 8 + k > 8 && !self.pos.is_multiple_of(8) {
+            self.pos = self.pos.next_multiple_of(8);
+        }
+        let place = Place {
+            start: self.pos as u32,
+            n: k as u32,
+        };
+        // A leaf of more than 8 starts a pack, so its tail starts the next.
+        self.pos += k;
+        place
+    }
+
+    /// Packs needed so far.
+    fn packs(&self) -> usize {
+        self.pos.div_ceil(8)
+    }
 }
 
 /// Packs per parallel task of [`fill_packs`].
 const FILL_CHUNK: usize = 256;
 
-/// Makes `total` packs, all padding (pack 0 stays so), and writes each leaf's triangles
-/// into its lanes. Leaves are in ascending lane order; each task fills a run of packs
-/// with the lanes of the leaves that overlap it, so no pack is written by two tasks.
-fn fill_packs<const N: usize, T: TriTest>(
-    mts: &[bvh::MultiTri<N>],
-    leaves: &[LeafPlace],
+/// Makes `total` packs (pack 0 all padding) with each leaf's triangles in its lanes:
+/// `lane(leaf, j)` gives the id and triangle of the leaf's `j`-th lane. `leaves` are in
+/// ascending lane order. Every pack is made once, in parallel, in place.
+fn fill_packs<T: TriTest, L: Sync>(
+    leaves: &[(L, Place)],
     total: usize,
+    lane: impl Fn(&(L, Place), usize) -> (u32, Triangle) + Sync,
 ) -> Vec<Pack<T>> {
-    let mut packs = vec![Pack(Tri8::<T>::pack(&[])); total.max(1)];
-    packs
-        .par_chunks_mut(FILL_CHUNK)
-        .enumerate()
-        .for_each(|(ci, chunk)| {
-            let lo = ci * FILL_CHUNK * 8;
-            let hi = lo + chunk.len() * 8;
-            let from = leaves.partition_point(|l| (l.start + l.n) as usize <= lo);
-            for l in &leaves[from..] {
+    (0..total.max(1))
+        .into_par_iter()
+        .with_min_len(FILL_CHUNK)
+        .map(|pi| {
+            let mut p = Tri8::<T>::pack(&[]);
+            let (lo, hi) = (pi * 8, pi * 8 + 8);
+            let from = leaves.partition_point(|(_, l)| (l.start + l.n) as usize <= lo);
+            for leaf in &leaves[from..] {
+                let l = &leaf.1;
                 if l.start as usize >= hi {
                     break;
                 }
-                let mut g = l.start as usize;
-                for mt in &mts[l.first as usize..(l.first + l.count) as usize] {
-                    for lane in 0..N {
-                        let id = mt.ids[lane];
-                        if id == bvh::MultiTri::<N>::PAD_ID {
-                            break;
+                let first = (l.start as usize).max(lo);
+                let last = ((l.start + l.n) as usize).min(hi);
+                for g in first..last {
+                    let (id, tri) = lane(leaf, g - l.start as usize);
+                    let d = T::lane_data(&tri);
+                    let j = g % 8;
+                    for (i, point) in d.iter().enumerate() {
+                        for (axis, &c) in point.iter().enumerate() {
+                            p.p[i][axis][j] = c;
                         }
-                        if (lo..hi).contains(&g) {
-                            let d = T::lane_data(&mt.get(lane));
-                            let p = &mut chunk[(g - lo) / 8].0;
-                            let j = g % 8;
-                            for (i, point) in d.iter().enumerate() {
-                                for (axis, &c) in point.iter().enumerate() {
-                                    p.p[i][axis][j] = c;
-                                }
-                            }
-                            p.ids[j] = id;
-                        }
-                        g += 1;
                     }
+                    p.ids[j] = id;
                 }
             }
-        });
-    packs
+            Pack(p)
+        })
+        .collect()
 }
 
 /// Deepest level of the builder's tree (root = 1).
@@ -420,5 +496,84 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             "bytes": self.bytes(),
             "bytes_per_triangle": ratio(self.bytes() as f64, live.max(1) as f64),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::triangle::tests::Rng;
+    use crate::accel::triangle::{MollerTrumbore, Watertight};
+    use crate::accel::BuildQuality;
+
+    /// Small triangles scattered in clusters, some degenerate or non-finite (left out).
+    fn soup(n: usize, seed: u64) -> Vec<Triangle> {
+        let mut rng = Rng(seed);
+        (0..n)
+            .map(|i| {
+                let c = rng.vec().map(|x| x * 10.0 * (1 + i % 3) as f32);
+                let mut t = Triangle {
+                    v: std::array::from_fn(|_| {
+                        let d = rng.vec();
+                        std::array::from_fn(|k| c[k] + 0.3 * d[k])
+                    }),
+                };
+                match i % 97 {
+                    5 => t.v[2] = t.v[1],
+                    11 => t.v[0][1] = f32::NAN,
+                    _ => {}
+                }
+                t
+            })
+            .collect()
+    }
+
+    fn assert_same<const N: usize, T: TriTest>(a: &TravTree<N, T>, b: &TravTree<N, T>) {
+        assert_eq!(a.nodes, b.nodes);
+        assert_eq!(a.packs.len(), b.packs.len());
+        for (i, (x, y)) in a.packs.iter().zip(&b.packs).enumerate() {
+            assert_eq!(x.0.ids, y.0.ids, "pack {i}");
+            let bits = |p: &Pack<T>| p.0.p.map(|q| q.map(|r| r.map(f32::to_bits)));
+            assert_eq!(bits(x), bits(y), "pack {i}");
+        }
+        assert_eq!(a.scale.to_bits(), b.scale.to_bits());
+        assert_eq!(a.depth, b.depth);
+        assert_eq!(a.triangles, b.triangles);
+        assert_eq!(a.excluded, b.excluded);
+    }
+
+    fn check<const N: usize>(tris: &[Triangle], q: BuildQuality) {
+        let wide = bvh::WideTree::<N>::build(tris, q);
+        let mbvh = bvh::Mbvh::<N>::build(tris, q);
+        assert_same(
+            &TravTree::<N, Watertight>::from_wide(&wide, tris),
+            &TravTree::<N, Watertight>::from_mbvh(&mbvh),
+        );
+        assert_same(
+            &TravTree::<N, MollerTrumbore>::from_wide(&wide, tris),
+            &TravTree::<N, MollerTrumbore>::from_mbvh(&mbvh),
+        );
+    }
+
+    /// The direct layout is exactly the layout of the built [`bvh::Mbvh`], for every
+    /// width and quality, on one thread and on several (the builder's parallel tasks
+    /// make sub-arenas that the pre-order walk must cross).
+    #[test]
+    fn the_direct_layout_equals_the_one_through_an_mbvh() {
+        for (n, seed) in [(0, 1), (1, 2), (7, 3), (300, 4), (20_000, 5)] {
+            let tris = soup(n, seed);
+            for threads in [1, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                pool.install(|| {
+                    for q in [BuildQuality::Fast, BuildQuality::Sah, BuildQuality::Sbvh] {
+                        check::<8>(&tris, q);
+                        check::<4>(&tris, q);
+                    }
+                });
+            }
+        }
     }
 }

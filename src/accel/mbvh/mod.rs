@@ -56,8 +56,17 @@ where
     /// Builds the tree over `triangles` with `options`' quality and precision on the
     /// current rayon pool, tracing with the process's SIMD backend.
     pub fn build(triangles: &[Triangle], options: &BuildOptions) -> Self {
-        let tree = bvh::Mbvh::<N>::build(triangles, options.quality);
-        Self::from_mbvh(&tree, options.precision, simd::selected())
+        let tree = bvh::WideTree::<N>::build(triangles, options.quality);
+        let trees = match options.precision {
+            Precision::Fast => Trees::Fast(checked(TravTree::from_wide(&tree, triangles))),
+            Precision::Watertight => {
+                Trees::Watertight(checked(TravTree::from_wide(&tree, triangles)))
+            }
+        };
+        MbvhCore {
+            trees,
+            backend: simd::selected(),
+        }
     }
 
     /// Converts a built tree for the test of `precision`, tracing on `backend` (tests and

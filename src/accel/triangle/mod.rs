@@ -31,7 +31,7 @@
 mod moller;
 pub mod oracle;
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 mod watertight;
 
 pub use moller::MollerTrumbore;
