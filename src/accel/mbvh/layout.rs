@@ -140,10 +140,10 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         }
         // A leaf's lane j is lane j % N of its (j / N)-th multi-triangle: the builder
         // fills them in order.
-        let packs = fill_packs(&leaves, places.packs(), |&(first, _), j| {
+        let packs = fill_packs(&leaves, &places, |&(first, _), j| {
             let mt = &mts[first as usize + j / N];
             (mt.ids[j % N], mt.get(j % N))
-        });
+        }, |_, _| {});
         TravTree {
             nodes,
             packs,
@@ -193,9 +193,14 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 pad: [0; N],
             });
         });
-        let packs = fill_packs(&leaves, places.packs(), |(refs, _), j| {
+        let packs = fill_packs(&leaves, &places, |(refs, _), j| {
             let id = refs.id(j);
             (id, triangles[id as usize])
+        }, |(refs, _), j| {
+            // Both ends: a 36-byte triangle may straddle two cache lines.
+            let t: *const u8 = (&triangles[refs.id(j) as usize] as *const Triangle).cast();
+            crate::simd::prefetch(t, 1);
+            crate::simd::prefetch(t.wrapping_add(std::mem::size_of::<Triangle>() - 1), 1);
         });
         TravTree {
             nodes,
@@ -339,11 +344,19 @@ impl Place {
 /// are padding, which unused node lanes point at (see [`TravNode::child`]).
 struct Places {
     pos: usize,
+    /// Leaves placed so far.
+    leaves: u32,
+    /// Per pack, the first leaf with lanes in it (pack 0: leaf 0, which starts later).
+    first: Vec<u32>,
 }
 
 impl Default for Places {
     fn default() -> Self {
-        Places { pos: 8 }
+        Places {
+            pos: 8,
+            leaves: 0,
+            first: vec![0],
+        }
     }
 }
 
@@ -360,52 +373,70 @@ impl Places {
         };
         // A leaf of more than 8 starts a pack, so its tail starts the next.
         self.pos += k;
+        // No pack is skipped: a leaf that does not fit starts the very next one.
+        while self.first.len() < self.pos.div_ceil(8) {
+            self.first.push(self.leaves);
+        }
+        self.leaves += 1;
         place
     }
 
     /// Packs needed so far.
     fn packs(&self) -> usize {
-        self.pos.div_ceil(8)
+        self.first.len()
     }
 }
 
 /// Packs per parallel task of [`fill_packs`].
 const FILL_CHUNK: usize = 256;
 
-/// Makes `total` packs (pack 0 all padding) with each leaf's triangles in its lanes:
-/// `lane(leaf, j)` gives the id and triangle of the leaf's `j`-th lane. `leaves` are in
-/// ascending lane order. Every pack is made once, in parallel, in place.
+/// Packs ahead whose triangles [`fill_packs`] prefetches.
+const PREFETCH_PACKS: usize = 4;
+
+/// Makes the packs of `places` (pack 0 all padding) with each leaf's triangles in its
+/// lanes: `lane(leaf, j)` gives the id and triangle of the leaf's `j`-th lane, and
+/// `prefetch(leaf, j)` asks for that triangle's cache lines a few packs ahead (a Morton
+/// build's leaves read the input triangles in random order). `leaves` are in the order
+/// they were placed. Every pack is made once, in parallel, in place.
 fn fill_packs<T: TriTest, L: Sync>(
     leaves: &[(L, Place)],
-    total: usize,
+    places: &Places,
     lane: impl Fn(&(L, Place), usize) -> (u32, Triangle) + Sync,
+    prefetch: impl Fn(&(L, Place), usize) + Sync,
 ) -> Vec<Pack<T>> {
-    (0..total.max(1))
+    // Calls `f(leaf, j, global lane)` for every lane of pack `pi`.
+    let lanes_of = |pi: usize, f: &mut dyn FnMut(&(L, Place), usize, usize)| {
+        let (lo, hi) = (pi * 8, pi * 8 + 8);
+        for leaf in &leaves[places.first[pi] as usize..] {
+            let l = &leaf.1;
+            if l.start as usize >= hi {
+                break;
+            }
+            let first = (l.start as usize).max(lo);
+            let last = ((l.start + l.n) as usize).min(hi);
+            for g in first..last {
+                f(leaf, g - l.start as usize, g);
+            }
+        }
+    };
+    (0..places.packs())
         .into_par_iter()
         .with_min_len(FILL_CHUNK)
         .map(|pi| {
-            let mut p = Tri8::<T>::pack(&[]);
-            let (lo, hi) = (pi * 8, pi * 8 + 8);
-            let from = leaves.partition_point(|(_, l)| (l.start + l.n) as usize <= lo);
-            for leaf in &leaves[from..] {
-                let l = &leaf.1;
-                if l.start as usize >= hi {
-                    break;
-                }
-                let first = (l.start as usize).max(lo);
-                let last = ((l.start + l.n) as usize).min(hi);
-                for g in first..last {
-                    let (id, tri) = lane(leaf, g - l.start as usize);
-                    let d = T::lane_data(&tri);
-                    let j = g % 8;
-                    for (i, point) in d.iter().enumerate() {
-                        for (axis, &c) in point.iter().enumerate() {
-                            p.p[i][axis][j] = c;
-                        }
-                    }
-                    p.ids[j] = id;
-                }
+            if pi + PREFETCH_PACKS < places.packs() {
+                lanes_of(pi + PREFETCH_PACKS, &mut |leaf, j, _| prefetch(leaf, j));
             }
+            let mut p = Tri8::<T>::pack(&[]);
+            lanes_of(pi, &mut |leaf, j, g| {
+                let (id, tri) = lane(leaf, j);
+                let d = T::lane_data(&tri);
+                for (i, point) in d.iter().enumerate() {
+                    for (axis, &c) in point.iter().enumerate() {
+                        p.p[i][axis][g % 8] = c;
+                    }
+                }
+                p.ids[g % 8] = id;
+            });
             Pack(p)
         })
         .collect()
