@@ -140,10 +140,15 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         }
         // A leaf's lane j is lane j % N of its (j / N)-th multi-triangle: the builder
         // fills them in order.
-        let packs = fill_packs(&leaves, &places, |&(first, _), j| {
-            let mt = &mts[first as usize + j / N];
-            (mt.ids[j % N], mt.get(j % N))
-        }, |_, _| {});
+        let packs = fill_packs(
+            &leaves,
+            &places,
+            |&(first, _), j| {
+                let mt = &mts[first as usize + j / N];
+                (mt.ids[j % N], mt.get(j % N))
+            },
+            |_, _| {},
+        );
         TravTree {
             nodes,
             packs,
@@ -193,15 +198,20 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 pad: [0; N],
             });
         });
-        let packs = fill_packs(&leaves, &places, |(refs, _), j| {
-            let id = refs.id(j);
-            (id, triangles[id as usize])
-        }, |(refs, _), j| {
-            // Both ends: a 36-byte triangle may straddle two cache lines.
-            let t: *const u8 = (&triangles[refs.id(j) as usize] as *const Triangle).cast();
-            crate::simd::prefetch(t, 1);
-            crate::simd::prefetch(t.wrapping_add(std::mem::size_of::<Triangle>() - 1), 1);
-        });
+        let packs = fill_packs(
+            &leaves,
+            &places,
+            |(refs, _), j| {
+                let id = refs.id(j);
+                (id, triangles[id as usize])
+            },
+            |(refs, _), j| {
+                // Both ends: a 36-byte triangle may straddle two cache lines.
+                let t: *const u8 = (&triangles[refs.id(j) as usize] as *const Triangle).cast();
+                crate::simd::prefetch(t, 1);
+                crate::simd::prefetch(t.wrapping_add(std::mem::size_of::<Triangle>() - 1), 1);
+            },
+        );
         TravTree {
             nodes,
             packs,
@@ -404,30 +414,17 @@ fn fill_packs<T: TriTest, L: Sync>(
     lane: impl Fn(&(L, Place), usize) -> (u32, Triangle) + Sync,
     prefetch: impl Fn(&(L, Place), usize) + Sync,
 ) -> Vec<Pack<T>> {
-    // Calls `f(leaf, j, global lane)` for every lane of pack `pi`.
-    let lanes_of = |pi: usize, f: &mut dyn FnMut(&(L, Place), usize, usize)| {
-        let (lo, hi) = (pi * 8, pi * 8 + 8);
-        for leaf in &leaves[places.first[pi] as usize..] {
-            let l = &leaf.1;
-            if l.start as usize >= hi {
-                break;
-            }
-            let first = (l.start as usize).max(lo);
-            let last = ((l.start + l.n) as usize).min(hi);
-            for g in first..last {
-                f(leaf, g - l.start as usize, g);
-            }
-        }
-    };
     (0..places.packs())
         .into_par_iter()
         .with_min_len(FILL_CHUNK)
         .map(|pi| {
             if pi + PREFETCH_PACKS < places.packs() {
-                lanes_of(pi + PREFETCH_PACKS, &mut |leaf, j, _| prefetch(leaf, j));
+                for_lanes(leaves, places, pi + PREFETCH_PACKS, |leaf, j, _| {
+                    prefetch(leaf, j)
+                });
             }
             let mut p = Tri8::<T>::pack(&[]);
-            lanes_of(pi, &mut |leaf, j, g| {
+            for_lanes(leaves, places, pi, |leaf, j, g| {
                 let (id, tri) = lane(leaf, j);
                 let d = T::lane_data(&tri);
                 for (i, point) in d.iter().enumerate() {
@@ -440,6 +437,27 @@ fn fill_packs<T: TriTest, L: Sync>(
             Pack(p)
         })
         .collect()
+}
+
+/// Calls `f(leaf, j, g)` for every lane of pack `pi`: lane `j` of `leaf` at global lane `g`.
+fn for_lanes<L>(
+    leaves: &[(L, Place)],
+    places: &Places,
+    pi: usize,
+    mut f: impl FnMut(&(L, Place), usize, usize),
+) {
+    let (lo, hi) = (pi * 8, pi * 8 + 8);
+    for leaf in &leaves[places.first[pi] as usize..] {
+        let l = &leaf.1;
+        if l.start as usize >= hi {
+            break;
+        }
+        let first = (l.start as usize).max(lo);
+        let last = ((l.start + l.n) as usize).min(hi);
+        for g in first..last {
+            f(leaf, g - l.start as usize, g);
+        }
+    }
 }
 
 /// Deepest level of the builder's tree (root = 1).
