@@ -1,6 +1,8 @@
 //! The traversal format of the MBVH accelerators: [`TravNode<N>`] multi-nodes whose leaves
-//! point at pre-gathered [`Tri8`] packs, converted from the builder's [`bvh::Mbvh<N>`]
-//! (STYLE habit 3: build format → traversal format).
+//! point at pre-gathered [`Tri8`] packs, laid out from the builder's tree (STYLE habit 3:
+//! build format → traversal format): straight from its intermediate nodes when an
+//! accelerator is built (`TravTree::from_wide`, which writes each triangle once), or from
+//! a finished [`bvh::Mbvh<N>`] ([`TravTree::from_mbvh`]); the two give identical trees.
 //!
 //! The builder's tree already has Áfra's node layout (§3.1); what changes here:
 //!

@@ -2,7 +2,9 @@
 //! multi-BVH (Áfra 2013), built by [`crate::accel::bvh`] and converted to a traversal
 //! format whose leaves are the 8-wide [`Tri8`] packs of the chosen triangle test.
 //!
-//! - [`layout`]: the traversal format ([`TravNode`], [`TravTree::from_mbvh`]).
+//! - [`layout`]: the traversal format ([`TravNode`], [`TravTree`]), written straight from
+//!   the builder's tree when an accelerator is built, or converted from a built
+//!   [`bvh::Mbvh`] ([`TravTree::from_mbvh`]).
 //! - [`ray`]: per-ray slab constants and why the slab test is conservative.
 //! - [`slab`]: the N-wide slab test.
 //! - [`stack`]: the (distance, node) stack and its sorting networks.
