@@ -1,0 +1,121 @@
+#!/usr/bin/env python3
+"""Score `auto`'s cost model on measured frames, and search a grid of its constants.
+
+Reads the tables that `rayd bench SCENE --frames 4 --accel dacrt,dacrt-sampled,mbvh8
+--build fast --sets primary,diffuse2 --rays-per-frame 65536,262144,1048576 --threads 1,2
+--format table` prints (BENCHMARKS.md §8), one file per run and scene, and for every
+situation (set, threads, rays; geometry new or refittable) compares the model's pick with
+the fastest measured strategy. Prints the score of the constants in `src/accel/auto.rs`,
+the best point of the grid over all files, and that search with each run held out in
+turn (files whose names share the prefix before the first `_` are one run).
+
+    scripts/fit_auto.py r1_dragon.txt r1_brainstem.txt r2_dragon.txt ...
+"""
+import itertools
+import math
+import os
+import re
+import sys
+
+CANDIDATES = [("dacrt-sampled", "update"), ("mbvh8", "rebuild"), ("mbvh8", "refit")]
+
+
+def parse(path):
+    """{(file, triangles, set, threads, rays): {(accel, mode): frame ms}}"""
+    out, tris, cur = {}, None, None
+    for line in open(path):
+        m = re.match(r"^\S+ — (\d+) triangles", line)
+        if m:
+            tris = int(m.group(1)) + 12
+            continue
+        m = re.match(r"^(\w+) rays, (\d+) thread", line)
+        if m:
+            cur = (m.group(1), int(m.group(2)))
+            continue
+        m = re.match(r"^\| (dacrt-sampled|dacrt|mbvh8) \| (update|rebuild|refit) \| [\d.]+ \| (.*)$",
+                     line)
+        if m and cur and tris:
+            cells = [float(c.split()[0]) for c in m.group(3).split("|")[:3]]
+            for rays, ms in zip([65536, 262144, 1048576], cells):
+                out.setdefault((path, tris, cur[0], cur[1], rays), {})[(m.group(1), m.group(2))] = ms
+    return out
+
+
+def current():
+    """The MODEL constants of src/accel/auto.rs."""
+    src = open(os.path.join(os.path.dirname(__file__), "..", "src", "accel", "auto.rs")).read()
+    block = src[src.index("const MODEL: Model"):]
+    block = block[:block.index("};")]
+    num = lambda k: [float(x) for x in re.search(k + r": \[?([^\]\n]+)\]?,", block).group(1).split(",")]
+    return dict(build=num("build")[0], refit=num("refit")[0], bvh_ray=num("bvh_ray")[0],
+                slow=num("refit_slowdown")[0], pre=num("dacrt_pre")[0], top=num("dacrt_top")[0],
+                dacrt_ray=num("dacrt_ray")[0], s_b=num("speedup2")[0], s_t=num("speedup2")[1],
+                s_d=num("speedup2")[2])
+
+
+def predict(p, tris, threads, rays, kind):
+    """src/accel/auto.rs's `predict`, one frame standing alone."""
+    sp = lambda s2: threads ** math.log2(s2)
+    lg = max(math.log2(tris), 1.0)
+    if kind == ("mbvh8", "rebuild"):
+        return p["build"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg / sp(p["s_t"])
+    if kind == ("mbvh8", "refit"):
+        return p["refit"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg * p["slow"] / sp(p["s_t"])
+    return (p["pre"] * tris + p["top"] * tris + rays * p["dacrt_ray"] * lg) / sp(p["s_d"])
+
+
+def score(p, sits):
+    """(right picks, situations, mean cost of wrong picks, worst cost)"""
+    ok, n, costs = 0, 0, []
+    for (_, tris, _, threads, rays), ms in sits.items():
+        for refittable in (False, True):
+            cands = [c for c in CANDIDATES[: 3 if refittable else 2] if c in ms]
+            if len(cands) < 2:
+                continue
+            pick = min(cands, key=lambda c: predict(p, tris, threads, rays, c))
+            best = min(cands, key=lambda c: ms[c])
+            n += 1
+            if pick == best:
+                ok += 1
+            else:
+                costs.append(ms[pick] / ms[best])
+    return ok, n, (sum(costs) / len(costs) if costs else 1.0), max(costs or [1.0])
+
+
+GRID = list(itertools.product([11e-9, 12e-9, 12.5e-9, 13e-9, 13.5e-9, 14e-9],
+                              [0.35e-6, 0.5e-6, 0.6e-6, 0.7e-6, 0.85e-6],
+                              [1.05, 1.1, 1.15, 1.2], [1.4, 1.5, 1.6], [1.6, 1.7, 1.8],
+                              [0.09e-6, 0.11e-6, 0.13e-6]))
+
+
+def search(base, sits):
+    best = None
+    for dr, top, slow, sd, st, build in GRID:
+        p = dict(base, dacrt_ray=dr, top=top, slow=slow, s_d=sd, s_t=st, build=build)
+        s = score(p, sits)
+        if best is None or (s[0], -s[2]) > (best[1][0], -best[1][2]):
+            best = (p, s)
+    return best
+
+
+def main():
+    sits = {}
+    for f in sys.argv[1:]:
+        sits.update(parse(f))
+    base = current()
+    print("src/accel/auto.rs:", score(base, sits), base)
+    p, s = search(base, sits)
+    print("grid best, in sample:", s, p)
+    run = lambda key: os.path.basename(key[0]).split("_")[0]
+    held = [0, 0]
+    for r in sorted({run(k) for k in sits}):
+        p, _ = search(base, {k: v for k, v in sits.items() if run(k) != r})
+        s = score(p, {k: v for k, v in sits.items() if run(k) == r})
+        print(f"run {r} held out:", s)
+        held[0] += s[0]
+        held[1] += s[1]
+    print("held out, all runs:", held)
+
+
+if __name__ == "__main__":
+    main()
