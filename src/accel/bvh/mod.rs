@@ -109,6 +109,7 @@ pub const DEPTH_LIMIT: u32 = 64;
 
 /// Whether a triangle can go into a tree: not degenerate and with finite coordinates
 /// (a NaN or infinite vertex would poison every box above it).
+#[inline]
 pub(crate) fn is_traceable(t: &crate::geometry::Triangle) -> bool {
     // `x · 0` is ±0 for a finite x and NaN for an infinite or NaN one, and a sum with a
     // NaN term is NaN: one branch instead of nine.

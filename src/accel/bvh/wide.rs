@@ -247,8 +247,7 @@ impl<const N: usize> Mbvh<N> {
     /// Builds the tree over `triangles` (ids are their indices) on the current rayon
     /// pool. Degenerate and non-finite triangles are left out. N must be 4 or 8.
     pub fn build(triangles: &[Triangle], quality: BuildQuality) -> Self {
-        const { assert!(N == 4 || N == 8, "MBVH width must be 4 or 8") };
-        let built = build::build::<N>(triangles, quality, Self::cost());
+        let built = WideTree::<N>::build(triangles, quality).built;
         let root = &built.arena[0];
         assert!(
             root.sub.blocks < (1 << Child::FIRST_BITS) - 1,
@@ -355,8 +354,8 @@ impl LeafRefs<'_> {
 }
 
 impl<const N: usize> WideTree<N> {
-    /// Builds the tree over `triangles` as [`Mbvh::build`] does (same nodes, same leaves,
-    /// same order) on the current rayon pool.
+    /// Builds the tree over `triangles` on the current rayon pool: the tree that
+    /// [`Mbvh::build`] flattens.
     pub fn build(triangles: &[Triangle], quality: BuildQuality) -> Self {
         const { assert!(N == 4 || N == 8, "MBVH width must be 4 or 8") };
         WideTree {
@@ -380,12 +379,12 @@ impl<const N: usize> WideTree<N> {
         &self.built.excluded
     }
 
-    /// Calls `f(index, depth, boxes, lanes)` for every multi-node in depth-first
-    /// pre-order (root first with depth 1, children in lane order): the order of
-    /// [`Mbvh::nodes`]. Empty lanes have empty boxes.
-    pub fn visit<'s>(&'s self, mut f: impl FnMut(u32, usize, &[Aabb; N], &[WideLane<'s>; N])) {
+    /// Calls `f(index, boxes, lanes)` for every multi-node in depth-first pre-order
+    /// (root first, children in lane order): the order of [`Mbvh::nodes`]. Empty lanes
+    /// have empty boxes.
+    pub fn visit<'s>(&'s self, mut f: impl FnMut(u32, &[Aabb; N], &[WideLane<'s>; N])) {
         let mut next = 0;
-        visit_node(&self.built.arena, 0, 1, &self.built.refs, &mut next, &mut f);
+        visit_node(&self.built.arena, 0, &self.built.refs, &mut next, &mut f);
     }
 }
 
@@ -393,10 +392,9 @@ impl<const N: usize> WideTree<N> {
 fn visit_node<'a, const N: usize>(
     arena: &'a [BNode<N>],
     idx: usize,
-    depth: usize,
     refs: &'a [Ref],
     next: &mut u32,
-    f: &mut impl FnMut(u32, usize, &[Aabb; N], &[WideLane<'a>; N]),
+    f: &mut impl FnMut(u32, &[Aabb; N], &[WideLane<'a>; N]),
 ) {
     let b = &arena[idx];
     let me = *next;
@@ -414,10 +412,10 @@ fn visit_node<'a, const N: usize>(
             child += a[j].sub.nodes;
         }
     }
-    f(me, depth, &boxes, &lanes);
+    f(me, &boxes, &lanes);
     for kid in &b.kids[..b.count] {
         if let Some((a, j)) = inner(arena, kid) {
-            visit_node(a, j, depth + 1, refs, next, f);
+            visit_node(a, j, refs, next, f);
         }
     }
     debug_assert_eq!(*next, child, "a subtree's size is its node count");

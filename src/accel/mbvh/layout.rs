@@ -151,14 +151,12 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             },
             |_, _| {},
         );
-        TravTree {
+        Self::assemble(
             nodes,
             packs,
-            scale: tree.bounds().max_abs(),
-            depth: depth(src),
-            triangles: tree.triangle_count(),
-            excluded: tree.excluded().to_vec(),
-        }
+            tree.triangle_count(),
+            tree.excluded().to_vec(),
+        )
     }
 
     /// Lays out the builder's tree directly, writing each triangle once, straight from
@@ -168,37 +166,26 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         let mut nodes = Vec::with_capacity(tree.node_count());
         let mut places = Places::default();
         let mut leaves = Vec::with_capacity(triangles.len() / 4 + 1);
-        let mut deepest = 0;
-        let mut bounds = Aabb::EMPTY;
-        tree.visit(|me, depth, boxes, lanes| {
+        tree.visit(|me, boxes, lanes| {
             debug_assert_eq!(me as usize, nodes.len(), "nodes come in pre-order");
-            deepest = deepest.max(depth);
-            let mut planes = [[0.0f32; N]; 6];
-            let mut child = [EMPTY_LANE; N];
-            for lane in 0..N {
-                let b = &boxes[lane];
-                for a in 0..3 {
-                    planes[a][lane] = b.min[a];
-                    planes[a + 3][lane] = b.max[a];
-                }
-                if me == 0 {
-                    bounds.union(b);
-                }
-                match lanes[lane] {
+            let mut node = TravNode {
+                planes: [[0.0; N]; 6],
+                child: [EMPTY_LANE; N],
+                pad: [0; N],
+            };
+            for (lane, (b, kind)) in boxes.iter().zip(lanes).enumerate() {
+                node.set_lane_box(lane, b);
+                match *kind {
                     bvh::WideLane::Empty => {}
-                    bvh::WideLane::Inner(i) => child[lane] = i as i32,
+                    bvh::WideLane::Inner(i) => node.child[lane] = i as i32,
                     bvh::WideLane::Leaf(refs) => {
                         let place = places.next(refs.len());
-                        child[lane] = place.id();
+                        node.child[lane] = place.id();
                         leaves.push((refs, place));
                     }
                 }
             }
-            nodes.push(TravNode {
-                planes,
-                child,
-                pad: [0; N],
-            });
+            nodes.push(node);
         });
         let packs = fill_packs(
             &leaves,
@@ -214,13 +201,29 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
                 crate::simd::prefetch(t.wrapping_add(std::mem::size_of::<Triangle>() - 1), 1);
             },
         );
-        TravTree {
+        Self::assemble(
             nodes,
             packs,
-            scale: bounds.max_abs(),
-            depth: deepest,
-            triangles: tree.triangle_count(),
-            excluded: tree.excluded().to_vec(),
+            tree.triangle_count(),
+            tree.excluded().to_vec(),
+        )
+    }
+
+    /// The tree of laid-out `nodes` (root first) and `packs`, with the scale and depth
+    /// they imply.
+    fn assemble(
+        nodes: Vec<TravNode<N>>,
+        packs: Vec<Pack<T>>,
+        triangles: usize,
+        excluded: Vec<u32>,
+    ) -> Self {
+        TravTree {
+            scale: nodes.first().map_or(0.0, |n| n.bounds().max_abs()),
+            depth: depth(&nodes),
+            nodes,
+            packs,
+            triangles,
+            excluded,
         }
     }
 
@@ -327,10 +330,7 @@ fn refit_nodes<const N: usize, T: Send + Sync>(
         if c < 0 {
             *b = leaf_box(c, packs, triangles);
         }
-        for a in 0..3 {
-            me.planes[a][lane] = b.min[a];
-            me.planes[a + 3][lane] = b.max[a];
-        }
+        me.set_lane_box(lane, b);
         all.union(b);
     }
     all
@@ -428,13 +428,7 @@ fn fill_packs<T: TriTest, L: Sync>(
             let mut p = Tri8::<T>::pack(&[]);
             for_lanes(leaves, places, pi, |leaf, j, g| {
                 let (id, tri) = lane(leaf, j);
-                let d = T::lane_data(&tri);
-                for (i, point) in d.iter().enumerate() {
-                    for (axis, &c) in point.iter().enumerate() {
-                        p.p[i][axis][g % 8] = c;
-                    }
-                }
-                p.ids[g % 8] = id;
+                p.set(g % 8, id, &tri);
             });
             Pack(p)
         })
@@ -462,15 +456,15 @@ fn for_lanes<L>(
     }
 }
 
-/// Deepest level of the builder's tree (root = 1).
-fn depth<const N: usize>(nodes: &[bvh::WideNode<N>]) -> usize {
+/// Deepest multi-node level of `nodes` (root = 1).
+fn depth<const N: usize>(nodes: &[TravNode<N>]) -> usize {
     let mut deepest = 0;
     let mut stack = vec![(0usize, 1usize)];
     while let Some((i, d)) = stack.pop() {
         deepest = deepest.max(d);
         for &c in &nodes[i].child {
-            if let Child::Inner(j) = Child::decode(c) {
-                stack.push((j as usize, d + 1));
+            if c >= 0 {
+                stack.push((c as usize, d + 1));
             }
         }
     }
@@ -483,6 +477,14 @@ impl<const N: usize> TravNode<N> {
         Aabb {
             min: [0, 1, 2].map(|k| self.planes[k][lane]),
             max: [3, 4, 5].map(|k| self.planes[k][lane]),
+        }
+    }
+
+    /// Sets the box of lane `lane`.
+    fn set_lane_box(&mut self, lane: usize, b: &Aabb) {
+        for a in 0..3 {
+            self.planes[a][lane] = b.min[a];
+            self.planes[a + 3][lane] = b.max[a];
         }
     }
 

@@ -207,22 +207,28 @@ impl<T: TriTest> Tri8<T> {
     /// With more than 8 triangles.
     pub fn pack(tris: &[(u32, Triangle)]) -> Tri8<T> {
         assert!(tris.len() <= 8, "a Tri8 holds at most 8 triangles");
-        let mut p = [[[f32::NAN; 8]; 3]; 3];
-        let mut ids = [PAD_ID; 8];
-        for (lane, (id, tri)) in tris.iter().enumerate() {
-            let d = T::lane_data(tri);
-            for (i, point) in d.iter().enumerate() {
-                for (axis, &c) in point.iter().enumerate() {
-                    p[i][axis][lane] = c;
-                }
-            }
-            ids[lane] = *id;
-        }
-        Tri8 {
-            p,
-            ids,
+        let mut pack = Tri8 {
+            p: [[[f32::NAN; 8]; 3]; 3],
+            ids: [PAD_ID; 8],
             test: PhantomData,
+        };
+        for (lane, (id, tri)) in tris.iter().enumerate() {
+            pack.set(lane, *id, tri);
         }
+        pack
+    }
+
+    /// Writes triangle `tri` with id `id` into lane `lane`, as [`TriTest::lane_data`]
+    /// stores it.
+    #[inline]
+    pub fn set(&mut self, lane: usize, id: u32, tri: &Triangle) {
+        let d = T::lane_data(tri);
+        for (i, point) in d.iter().enumerate() {
+            for (axis, &c) in point.iter().enumerate() {
+                self.p[i][axis][lane] = c;
+            }
+        }
+        self.ids[lane] = id;
     }
 
     /// Re-reads every real lane from `tris` (indexed by triangle id) through
@@ -235,14 +241,8 @@ impl<T: TriTest> Tri8<T> {
     pub fn regather(&mut self, tris: &[Triangle]) {
         for lane in 0..8 {
             let id = self.ids[lane];
-            if id == PAD_ID {
-                continue;
-            }
-            let d = T::lane_data(&tris[id as usize]);
-            for (i, point) in d.iter().enumerate() {
-                for (axis, &c) in point.iter().enumerate() {
-                    self.p[i][axis][lane] = c;
-                }
+            if id != PAD_ID {
+                self.set(lane, id, &tris[id as usize]);
             }
         }
     }
