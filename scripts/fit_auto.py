@@ -17,7 +17,13 @@ import os
 import re
 import sys
 
-CANDIDATES = [("dacrt-sampled", "update"), ("mbvh8", "rebuild"), ("mbvh8", "refit")]
+# The strategies `rayd bench` measures `auto` against (src/bench/dynamic.rs, `candidates`;
+# brute is never measured here): for new geometry a rebuild, for refittable geometry a
+# refit, and both DACRT cores either way.
+CANDIDATES = {
+    False: [("mbvh8", "rebuild"), ("dacrt", "update"), ("dacrt-sampled", "update")],
+    True: [("mbvh8", "refit"), ("dacrt", "update"), ("dacrt-sampled", "update")],
+}
 
 
 def parse(path):
@@ -53,32 +59,37 @@ def current():
                 s_d=num("speedup2")[2])
 
 
-def predict(p, tris, threads, rays, kind):
-    """src/accel/auto.rs's `predict`, one frame standing alone."""
+def pick(p, tris, threads, rays, refittable):
+    """What src/accel/auto.rs's `choose` runs for one frame standing alone (one batch):
+    `mbvh8` (a refit of refittable geometry, else a rebuild) or `dacrt-sampled`."""
     sp = lambda s2: threads ** math.log2(s2)
     lg = max(math.log2(tris), 1.0)
-    if kind == ("mbvh8", "rebuild"):
-        return p["build"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg / sp(p["s_t"])
-    if kind == ("mbvh8", "refit"):
-        return p["refit"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg * p["slow"] / sp(p["s_t"])
-    return (p["pre"] * tris + p["top"] * tris + rays * p["dacrt_ray"] * lg) / sp(p["s_d"])
+    if refittable:
+        bvh = p["refit"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg * p["slow"] / sp(p["s_t"])
+    else:
+        bvh = p["build"] * tris / sp(p["s_b"]) + rays * p["bvh_ray"] * lg / sp(p["s_t"])
+    dacrt = (p["pre"] * tris + p["top"] * tris + rays * p["dacrt_ray"] * lg) / sp(p["s_d"])
+    if dacrt < bvh:
+        return ("dacrt-sampled", "update")
+    return ("mbvh8", "refit" if refittable else "rebuild")
 
 
 def score(p, sits):
-    """(right picks, situations, mean cost of wrong picks, worst cost)"""
+    """(right picks, situations, mean cost of wrong picks, worst cost), as `rayd bench`
+    scores them."""
     ok, n, costs = 0, 0, []
     for (_, tris, _, threads, rays), ms in sits.items():
         for refittable in (False, True):
-            cands = [c for c in CANDIDATES[: 3 if refittable else 2] if c in ms]
-            if len(cands) < 2:
+            cands = [c for c in CANDIDATES[refittable] if c in ms]
+            chosen = pick(p, tris, threads, rays, refittable)
+            if len(cands) < 2 or chosen not in ms:
                 continue
-            pick = min(cands, key=lambda c: predict(p, tris, threads, rays, c))
             best = min(cands, key=lambda c: ms[c])
             n += 1
-            if pick == best:
+            if chosen == best:
                 ok += 1
             else:
-                costs.append(ms[pick] / ms[best])
+                costs.append(ms[chosen] / ms[best])
     return ok, n, (sum(costs) / len(costs) if costs else 1.0), max(costs or [1.0])
 
 

@@ -96,11 +96,11 @@ struct Model {
 /// (BENCHMARKS.md §8), with `sah` and `sbvh` builds from the build-only runs of §4 and
 /// §21.1 (2-core Zen 3). The last refit (session 12, after the direct layout made `fast`
 /// builds 0.7–0.8× their time) searched a grid of the DACRT, refit and thread constants
-/// for the most right picks over three runs of §8 (`scripts/fit_auto.py`): 119 of 144
-/// situations in sample, 115 of 144 with each run held out in turn, against 105 for
-/// the constants before. The BVH and DACRT trace about equally per ray once a batch is
-/// large, and DACRT's per-batch partitioning near the root costs about what a `fast`
-/// build does, so DACRT wins where a `sah` or `sbvh` build would not be repaid.
+/// over three runs of §8 (`scripts/fit_auto.py`); scored as `rayd bench` scores, these
+/// constants pick the fastest in 116 of those 144 situations, against 110 for the ones
+/// before (§8.1). The BVH and DACRT trace about equally per ray once a batch is large,
+/// and DACRT's per-batch partitioning near the root costs about what a `fast` build does,
+/// so DACRT wins where a `sah` or `sbvh` build would not be repaid.
 const MODEL: Model = Model {
     build: [0.11e-6, 0.65e-6, 2.2e-6],
     refit: 0.038e-6,
