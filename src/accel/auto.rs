@@ -76,8 +76,10 @@ struct Model {
     build: [f64; 3],
     /// `mbvh8` refit per triangle.
     refit: f64,
-    /// `mbvh8` trace per ray per log₂ T, on a fresh tree.
+    /// `mbvh8` trace per ray per log₂ T, on a fresh `fast` tree.
     bvh_ray: f64,
+    /// The trace's cost on a tree of each quality relative to a `fast` one.
+    trace: [f64; 3],
     /// How much slower a refitted tree traces than a fresh one.
     refit_slowdown: f64,
     /// `dacrt-sampled` precompute per triangle.
@@ -93,23 +95,25 @@ struct Model {
 
 /// Fitted to `rayd bench --frames 4 --build fast` on dragon-100k (twist) and BrainStem
 /// (animation), 64K–1M rays per frame, primary and diffuse2 rays, 1 and 2 threads
-/// (BENCHMARKS.md §8), with `sah` and `sbvh` builds from the build-only runs of §4 and
-/// §21.1 (2-core Zen 3). The last refit (session 12, after the direct layout made `fast`
-/// builds 0.7–0.8× their time) searched a grid of the DACRT, refit and thread constants
-/// over three runs of §8 (`scripts/fit_auto.py`); scored as `rayd bench` scores, these
-/// constants pick the fastest in 116 of those 144 situations, against 110 for the ones
-/// before (§8.1). The BVH and DACRT trace about equally per ray once a batch is large,
-/// and DACRT's per-batch partitioning near the root costs about what a `fast` build does,
-/// so DACRT wins where a `sah` or `sbvh` build would not be repaid.
+/// (BENCHMARKS.md §8), with the `sah` and `sbvh` builds and their traces from one-thread
+/// build runs of both scenes (2-core Zen 3, session 13). `scripts/fit_auto.py` searched a
+/// grid of the DACRT, BVH, refit and thread constants over five runs of §8 for the most
+/// right picks among points that also predict every strategy's frame times within about
+/// 20% (RMS of the log error): ranking alone found constants that picked as well while
+/// predicting DACRT's frames at twice their time, which then mispredicted every job
+/// unlike the fitted ones. These pick the fastest in 205 of 240 situations (204 with
+/// each run held out in turn, §8.1). The BVH and DACRT trace about equally per ray once a
+/// batch is large, so DACRT wins where a build would not be repaid.
 const MODEL: Model = Model {
-    build: [0.11e-6, 0.65e-6, 2.2e-6],
+    build: [0.09e-6, 0.47e-6, 2.0e-6],
     refit: 0.038e-6,
-    bvh_ray: 15.0e-9,
-    refit_slowdown: 1.1,
+    bvh_ray: 12.0e-9,
+    trace: [1.0, 0.85, 0.9],
+    refit_slowdown: 1.05,
     dacrt_pre: 0.055e-6,
-    dacrt_top: 0.5e-6,
-    dacrt_ray: 12.5e-9,
-    speedup2: [1.5, 1.7, 1.5],
+    dacrt_top: 0.1e-6,
+    dacrt_ray: 12.0e-9,
+    speedup2: [1.5, 1.6, 1.6],
 };
 
 fn speedup(s2: f64, threads: usize) -> f64 {
@@ -144,7 +148,7 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
                 Geometry::Refittable => (m.refit * t, m.refit_slowdown),
                 Geometry::Built => (0.0, 1.0),
             };
-            let trace = r * m.bvh_ray * lg * slow;
+            let trace = r * m.bvh_ray * m.trace[quality_index(job.quality)] * lg * slow;
             Some(
                 prep / speedup(m.speedup2[0], job.threads)
                     + trace / speedup(m.speedup2[1], job.threads),
