@@ -7,15 +7,20 @@ Reads the tables that `rayd bench SCENE --frames 4 --accel dacrt,dacrt-sampled,m
 situation (set, threads, rays; geometry new or refittable) compares the model's pick with
 the fastest measured strategy. Prints the score of the constants in `src/accel/auto.rs`,
 the best point of the grid over all files, and that search with each run held out in
-turn (files whose names share the prefix before the first `_` are one run).
+turn (files whose names share the prefix before the first `_` are one run) and with each
+scene held out in turn.
 
     scripts/fit_auto.py r1_dragon.txt r1_brainstem.txt r2_dragon.txt ...
+
+Needs numpy: the grid has about a million points.
 """
 import itertools
 import math
 import os
 import re
 import sys
+
+import numpy as np
 
 # The strategies `rayd bench` measures `auto` against (src/bench/dynamic.rs, `candidates`;
 # brute is never measured here): for new geometry a rebuild, for refittable geometry a
@@ -24,6 +29,14 @@ CANDIDATES = {
     False: [("mbvh8", "rebuild"), ("dacrt", "update"), ("dacrt-sampled", "update")],
     True: [("mbvh8", "refit"), ("dacrt", "update"), ("dacrt-sampled", "update")],
 }
+STRATEGIES = [("mbvh8", "rebuild"), ("mbvh8", "refit"), ("dacrt-sampled", "update")]
+
+# The largest RMS log error a searched point may have on any strategy's frame times (0.25:
+# most predictions within about 25%). Ranking alone can drift far from the times: it once
+# found constants that picked as well as any while predicting DACRT's frames at twice
+# their time, and such constants mispredict every job unlike the fitted ones (a `sah`
+# build that one frame alone must repay, a scene of another size).
+MAX_ERROR = 0.25
 
 
 def parse(path):
@@ -56,111 +69,138 @@ def current():
     return dict(build=num("build")[0], refit=num("refit")[0], bvh_ray=num("bvh_ray")[0],
                 slow=num("refit_slowdown")[0], pre=num("dacrt_pre")[0], top=num("dacrt_top")[0],
                 dacrt_ray=num("dacrt_ray")[0], s_b=num("speedup2")[0], s_t=num("speedup2")[1],
-                s_d=num("speedup2")[2])
+                s_d=num("speedup2")[2], e_b=num("ray_shape")[0], e_d=num("ray_shape")[1])
 
 
 def predict(p, tris, threads, rays):
     """The model's frame seconds of each strategy (src/accel/auto.rs's `predict`, one
-    frame standing alone, one batch)."""
-    sp = lambda s2: threads ** math.log2(s2)
-    lg = max(math.log2(tris), 1.0)
+    frame standing alone, one batch). Works on numbers and on broadcasting numpy arrays."""
+    sp = lambda s2: threads ** np.log2(s2)
+    lg = np.maximum(np.log2(tris), 1.0)
+    shape = lambda e: lg * (np.clip(lg, 12.0, 20.0) / 16.0) ** e
+    bvh_trace = rays * p["bvh_ray"] * shape(p["e_b"]) / sp(p["s_t"])
     return {
-        ("mbvh8", "rebuild"): p["build"] * tris / sp(p["s_b"])
-        + rays * p["bvh_ray"] * lg / sp(p["s_t"]),
-        ("mbvh8", "refit"): p["refit"] * tris / sp(p["s_b"])
-        + rays * p["bvh_ray"] * lg * p["slow"] / sp(p["s_t"]),
+        ("mbvh8", "rebuild"): p["build"] * tris / sp(p["s_b"]) + bvh_trace,
+        ("mbvh8", "refit"): p["refit"] * tris / sp(p["s_b"]) + bvh_trace * p["slow"],
         ("dacrt-sampled", "update"): (p["pre"] * tris + p["top"] * tris
-                                      + rays * p["dacrt_ray"] * lg) / sp(p["s_d"]),
+                                      + rays * p["dacrt_ray"] * shape(p["e_d"])) / sp(p["s_d"]),
     }
 
 
-def pick(p, tris, threads, rays, refittable):
-    """What `choose` runs: `mbvh8` (a refit of refittable geometry, else a rebuild) or
-    `dacrt-sampled`."""
-    t = predict(p, tris, threads, rays)
-    bvh = t[("mbvh8", "refit" if refittable else "rebuild")]
-    if t[("dacrt-sampled", "update")] < bvh:
-        return ("dacrt-sampled", "update")
-    return ("mbvh8", "refit" if refittable else "rebuild")
+class Situations:
+    """The measured situations as columns: one per (situation, new or refittable)."""
+
+    def __init__(self, sits):
+        cols = {k: [] for k in ("tris", "threads", "rays", "refit", "bvh_ms", "dacrt_ms", "best_ms",
+                                "bvh_best", "dacrt_best")}
+        self.times = {k: ([], [], [], []) for k in STRATEGIES}  # tris, threads, rays, ms
+        for (_, tris, _, threads, rays), ms in sits.items():
+            for k in STRATEGIES:
+                if k in ms:
+                    for col, v in zip(self.times[k], (tris, threads, rays, ms[k])):
+                        col.append(v)
+            for refittable in (False, True):
+                bvh = CANDIDATES[refittable][0]
+                cands = [c for c in CANDIDATES[refittable] if c in ms]
+                if len(cands) < 2 or bvh not in ms or ("dacrt-sampled", "update") not in ms:
+                    continue
+                best = min(cands, key=lambda c: ms[c])
+                for col, v in zip(cols.values(), (tris, threads, rays, refittable, ms[bvh],
+                                                  ms[("dacrt-sampled", "update")], ms[best],
+                                                  best == bvh,
+                                                  best == ("dacrt-sampled", "update"))):
+                    col.append(v)
+        self.c = {k: np.array(v, dtype=float) for k, v in cols.items()}
+        self.times = {k: tuple(np.array(c, dtype=float) for c in v) for k, v in self.times.items()}
+        self.n = len(self.c["tris"])
 
 
-def errors(p, sits):
-    """Per strategy, the root mean square of ln(predicted / measured) frame time: a fit
-    that only ranks strategies can drift far from the times themselves (one that picked as
-    well as any predicted DACRT's frames at twice their time), and then mispredicts every
-    job unlike the fitted ones, such as a `sah` build that one frame alone must repay."""
-    out = {}
-    for (_, tris, _, threads, rays), ms in sits.items():
-        for k, sec in predict(p, tris, threads, rays).items():
-            if k in ms:
-                out.setdefault(k, []).append(math.log(sec * 1000.0 / ms[k]))
-    return {k: math.sqrt(sum(e * e for e in v) / len(v)) for k, v in out.items()}
-
-
-def score(p, sits):
+def score(p, s):
     """(right picks, situations, mean cost of wrong picks, worst cost), as `rayd bench`
-    scores them."""
-    ok, n, costs = 0, 0, []
-    for (_, tris, _, threads, rays), ms in sits.items():
-        for refittable in (False, True):
-            cands = [c for c in CANDIDATES[refittable] if c in ms]
-            chosen = pick(p, tris, threads, rays, refittable)
-            if len(cands) < 2 or chosen not in ms:
-                continue
-            best = min(cands, key=lambda c: ms[c])
-            n += 1
-            if chosen == best:
-                ok += 1
-            else:
-                costs.append(ms[chosen] / ms[best])
-    return ok, n, (sum(costs) / len(costs) if costs else 1.0), max(costs or [1.0])
+    scores them; with array-valued constants (shape (N, 1)), arrays of N each."""
+    c = s.c
+    t = predict(p, c["tris"], c["threads"], c["rays"])
+    bvh = np.where(c["refit"] > 0, t[("mbvh8", "refit")], t[("mbvh8", "rebuild")])
+    dacrt = t[("dacrt-sampled", "update")] < bvh
+    right = np.where(dacrt, c["dacrt_best"], c["bvh_best"]) > 0
+    cost = np.where(dacrt, c["dacrt_ms"], c["bvh_ms"]) / c["best_ms"]
+    wrong = ~right
+    nwrong = wrong.sum(axis=-1)
+    mean = np.where(nwrong > 0, (cost * wrong).sum(axis=-1) / np.maximum(nwrong, 1), 1.0)
+    worst = np.where(wrong, cost, 1.0).max(axis=-1)
+    return right.sum(axis=-1), s.n, mean, worst
+
+
+def errors(p, s):
+    """Per strategy, the root mean square of ln(predicted / measured) frame time."""
+    out = {}
+    for k, (tris, threads, rays, ms) in s.times.items():
+        e = np.log(predict(p, tris, threads, rays)[k] * 1000.0 / ms)
+        out[k] = np.sqrt((e * e).mean(axis=-1))
+    return out
 
 
 # DACRT per batch and per ray, its 2-thread speed-up, the trace's, the `fast` build per
-# triangle, the refit slowdown, the BVH per ray.
-GRID = list(itertools.product([0.1e-6, 0.15e-6, 0.2e-6, 0.3e-6, 0.5e-6, 0.85e-6],
-                              [10e-9, 11e-9, 12e-9, 13e-9, 14e-9], [1.4, 1.5, 1.6, 1.7],
-                              [1.6, 1.7, 1.8], [0.09e-6, 0.11e-6, 0.13e-6],
-                              [1.05, 1.1, 1.15], [12e-9, 13.5e-9, 15e-9]))
+# triangle, the refit slowdown, the BVH per ray, and how the BVH's and DACRT's per-ray
+# costs bend with log₂ T (exponents of log₂ T / 16).
+GRID = {
+    "top": [0.1e-6, 0.15e-6, 0.2e-6, 0.3e-6, 0.5e-6],
+    "dacrt_ray": [10e-9, 11e-9, 12e-9, 13e-9, 14e-9],
+    "s_d": [1.4, 1.5, 1.6, 1.7],
+    "s_t": [1.6, 1.7, 1.8],
+    "build": [0.09e-6, 0.11e-6, 0.13e-6],
+    "slow": [1.05, 1.1, 1.15],
+    "bvh_ray": [12e-9, 13.5e-9, 15e-9],
+    "e_b": [0.0, 0.5, 1.0],
+    "e_d": [0.0, 0.5, 1.0, 1.5, 2.0],
+}
 
-# The largest RMS log error a searched point may have on any strategy's times (0.25: a
-# quarter of its predictions off by more than about 28%).
-MAX_ERROR = 0.25
 
-
-def search(base, sits):
+def search(base, s):
     """The grid point with the most right picks (then the cheapest wrong ones) among
     those that also predict every strategy's times within MAX_ERROR."""
+    names = list(GRID)
+    points = np.array(list(itertools.product(*GRID.values())))
     best = None
-    for top, dr, sd, st, build, slow, br in GRID:
-        p = dict(base, top=top, dacrt_ray=dr, s_d=sd, s_t=st, build=build, slow=slow,
-                 bvh_ray=br)
-        s = score(p, sits)
-        if best is not None and (s[0], -s[2]) <= (best[1][0], -best[1][2]):
-            continue
-        if max(errors(p, sits).values()) <= MAX_ERROR:
-            best = (p, s)
-    return best
+    for chunk in np.array_split(points, max(1, len(points) // 20000)):
+        p = dict(base, **{n: chunk[:, i:i + 1] for i, n in enumerate(names)})
+        ok, _, mean, _ = score(p, s)
+        err = np.max(np.stack([e.ravel() for e in errors(p, s).values()]), axis=0)
+        key = np.where(err <= MAX_ERROR, ok * 1000.0 - mean, -np.inf)
+        i = int(np.argmax(key))
+        if np.isfinite(key[i]) and (best is None or key[i] > best[0]):
+            best = (key[i], dict(base, **{n: float(chunk[i, j]) for j, n in enumerate(names)}))
+    return best[1]
+
+
+def show(p, s):
+    ok, n, mean, worst = score(p, s)
+    err = {f"{a} {m}": round(float(v), 3) for (a, m), v in errors(p, s).items()}
+    return f"{int(ok)} of {n} right, wrong picks {float(mean):.3f}× (worst {float(worst):.2f}×); errors {err}"
 
 
 def main():
     sits = {}
     for f in sys.argv[1:]:
         sits.update(parse(f))
+    every = Situations(sits)
     base = current()
-    fmt = lambda e: {f"{a} {m}": round(v, 3) for (a, m), v in e.items()}
-    print("src/accel/auto.rs:", score(base, sits), base, "errors:", fmt(errors(base, sits)))
-    p, s = search(base, sits)
-    print("grid best, in sample:", s, p, "errors:", fmt(errors(p, sits)))
-    run = lambda key: os.path.basename(key[0]).split("_")[0]
-    held = [0, 0]
-    for r in sorted({run(k) for k in sits}):
-        p, _ = search(base, {k: v for k, v in sits.items() if run(k) != r})
-        s = score(p, {k: v for k, v in sits.items() if run(k) == r})
-        print(f"run {r} held out:", s)
-        held[0] += s[0]
-        held[1] += s[1]
-    print("held out, all runs:", held)
+    print("src/accel/auto.rs:", show(base, every), base)
+    p = search(base, every)
+    print("grid best, in sample:", show(p, every), p)
+    # A run is the files sharing a name's prefix before `_`; a scene, its triangle count.
+    groups = (("run", lambda key: os.path.basename(key[0]).split("_")[0]),
+              ("scene", lambda key: f"of {key[1]} triangles"))
+    for label, group in groups:
+        held = [0, 0]
+        for r in sorted({group(k) for k in sits}):
+            fit = Situations({k: v for k, v in sits.items() if group(k) != r})
+            test = Situations({k: v for k, v in sits.items() if group(k) == r})
+            ok, n, mean, _ = score(search(base, fit), test)
+            print(f"{label} {r} held out: {int(ok)} of {n}, wrong picks {float(mean):.3f}×")
+            held[0] += int(ok)
+            held[1] += n
+        print(f"held out by {label}, all: {held[0]} of {held[1]}")
 
 
 if __name__ == "__main__":

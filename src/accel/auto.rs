@@ -88,6 +88,9 @@ struct Model {
     dacrt_top: f64,
     /// `dacrt-sampled` per ray per log₂ T.
     dacrt_ray: f64,
+    /// How the BVH's and DACRT's per-ray costs bend with the scene's size: each is
+    /// multiplied by `(log₂ T / 16)^e`.
+    ray_shape: [f64; 2],
     /// Speed-up on 2 threads of the BVH build, the BVH trace and DACRT; more threads
     /// extrapolate it as `threads^log₂(speed-up)`.
     speedup2: [f64; 3],
@@ -109,15 +112,24 @@ const MODEL: Model = Model {
     refit: 0.038e-6,
     bvh_ray: 12.0e-9,
     trace: [1.0, 0.85, 0.9],
-    refit_slowdown: 1.05,
+    refit_slowdown: 1.1,
     dacrt_pre: 0.055e-6,
     dacrt_top: 0.1e-6,
     dacrt_ray: 12.0e-9,
-    speedup2: [1.5, 1.6, 1.6],
+    speedup2: [1.5, 1.6, 1.5],
+    ray_shape: [0.0, 1.5],
 };
 
 fn speedup(s2: f64, threads: usize) -> f64 {
     (threads.max(1) as f64).powf(s2.log2())
+}
+
+/// log₂ T bent by the model's `ray_shape[i]`: DACRT's per-ray cost grows faster with the
+/// scene than the BVH's (on 1M triangles it traces at half the BVH's rate, on 100K at
+/// about the BVH's, on 5K faster). The bend is held to the range it was fitted on
+/// (4K–1M triangles): below it a ray's fixed costs dominate.
+fn shaped(lg: f64, i: usize) -> f64 {
+    lg * (lg.clamp(12.0, 20.0) / 16.0).powf(MODEL.ray_shape[i])
 }
 
 fn quality_index(q: BuildQuality) -> usize {
@@ -148,7 +160,7 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
                 Geometry::Refittable => (m.refit * t, m.refit_slowdown),
                 Geometry::Built => (0.0, 1.0),
             };
-            let trace = r * m.bvh_ray * m.trace[quality_index(job.quality)] * lg * slow;
+            let trace = r * m.bvh_ray * m.trace[quality_index(job.quality)] * shaped(lg, 0) * slow;
             Some(
                 prep / speedup(m.speedup2[0], job.threads)
                     + trace / speedup(m.speedup2[1], job.threads),
@@ -157,7 +169,7 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
         AccelKind::DacrtSampled => {
             let prep = m.dacrt_pre * t;
             let top = job.batches.max(1) as f64 * m.dacrt_top * t;
-            let trace = r * m.dacrt_ray * lg;
+            let trace = r * m.dacrt_ray * shaped(lg, 1);
             Some((prep + top + trace) / speedup(m.speedup2[2], job.threads))
         }
         // Every ray against every triangle, eight at a time: only for a handful.
