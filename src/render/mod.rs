@@ -502,7 +502,20 @@ pub fn pixel_sample(seed: u64, p: usize, s: u32, spp: u32) -> (f64, f64) {
     let (dx, dy) = (shift.next_f32() as f64, shift.next_f32() as f64);
     let x = s as f64 / spp.max(1) as f64;
     let y = s.reverse_bits() as f64 * (1.0 / 4_294_967_296.0);
-    ((x + dx).fract(), (y + dy).fract())
+    (wrap_unit(x + dx), wrap_unit(y + dy))
+}
+
+/// `v.fract()` for `v` in [0, 2), which the shift's sums are: the same value (`v − 1` is
+/// exact there), without the call to `trunc` that `fract` compiles to on x86-64's
+/// baseline (no SSE4.1 rounding), a measurable part of a path render's camera rays.
+#[inline]
+fn wrap_unit(v: f64) -> f64 {
+    debug_assert!((0.0..2.0).contains(&v));
+    if v >= 1.0 {
+        v - 1.0
+    } else {
+        v
+    }
 }
 
 /// One wave: sample `s` of pixels `start..end`, accumulated into `out`.
@@ -793,24 +806,19 @@ fn trace_shadows(
     }
 }
 
-/// The continuing ray of a scattering, with what the path then carries and what MIS
-/// needs of the vertex.
-struct Next {
-    ray: Ray,
-    throughput: Vec3,
-    pos: Vec3,
-    ns: Vec3,
-    pdf: f32,
-}
-
-/// What shading one path vertex gives: radiance to add now, a shadow ray towards a light
-/// with what it adds when unoccluded, and the continuing ray.
+/// What shading one path vertex gives besides the continuation, which it writes into the
+/// path itself: radiance to add now, and a shadow ray towards a light with what it adds
+/// when unoccluded. Kept small (64 bytes): every vertex of a wave writes one and the
+/// gathering after the shading reads them all.
 #[derive(Default)]
 struct Step {
     emitted: Vec3,
     shadow: Option<(Ray, Vec3)>,
-    next: Option<Next>,
+    /// Whether the path scattered into a continuing ray (its new state is in the path).
+    continues: bool,
 }
+
+const _: () = assert!(std::mem::size_of::<Step>() <= 64, "a Step fits a cache line");
 
 /// The `path` integrator over one wave, in batches: every live path is shaded in parallel
 /// (each owns its random stream, so the thread count changes nothing), then all shadow rays
@@ -852,20 +860,9 @@ fn trace_paths(
                 shadows.pixel.push(p.pixel);
             }
         }
-        // Each path becomes its continuation in place, and the ended ones drop out.
-        live.par_iter_mut().zip(&steps[..]).for_each(|(p, step)| {
-            if let Some(n) = &step.next {
-                p.ray = n.ray;
-                p.throughput = n.throughput;
-                p.hit = Hit::MISS;
-                p.travelled = 0.0;
-                p.prev_pos = n.pos;
-                p.prev_ns = n.ns;
-                p.prev_pdf = n.pdf;
-            }
-        });
+        // The ended paths drop out (the others became their continuations while shaded).
         // `retain` visits the paths in order, so the k-th visit is the k-th step's.
-        let mut next = steps.iter().map(|step| step.next.is_some());
+        let mut next = steps.iter().map(|step| step.continues);
         live.retain(|_| next.next().unwrap_or(false));
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
         for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
@@ -1012,18 +1009,20 @@ fn shade_vertex(
         };
         // A direction under the geometric surface would leak through it.
         if survives && wi.dot(sp.ng) > 0.0 {
-            step.next = Some(Next {
-                ray: Ray {
-                    org,
-                    tmin: 0.0,
-                    dir: wi.to_array(),
-                    tmax: f32::INFINITY,
-                },
-                throughput,
-                pos,
-                ns: sp.ns,
-                pdf: s.pdf,
-            });
+            // The path becomes its continuation in place (its pixel stays).
+            p.ray = Ray {
+                org,
+                tmin: 0.0,
+                dir: wi.to_array(),
+                tmax: f32::INFINITY,
+            };
+            p.throughput = throughput;
+            p.hit = Hit::MISS;
+            p.travelled = 0.0;
+            p.prev_pos = pos;
+            p.prev_ns = sp.ns;
+            p.prev_pdf = s.pdf;
+            step.continues = true;
         }
     }
     step
