@@ -818,7 +818,10 @@ struct Step {
     continues: bool,
 }
 
-const _: () = assert!(std::mem::size_of::<Step>() <= 64, "a Step fits a cache line");
+const _: () = assert!(
+    std::mem::size_of::<Step>() <= 64,
+    "a Step fits a cache line"
+);
 
 /// The `path` integrator over one wave, in batches: every live path is shaded in parallel
 /// (each owns its random stream, so the thread count changes nothing), then all shadow rays
