@@ -242,11 +242,91 @@ impl ViewCamera {
             tmax: f32::INFINITY,
         }
     }
+
+    /// [`ViewCamera::ray`] of [`RAYS_AT_ONCE`] image positions, bit for bit: the same
+    /// operations in the same order, written lane by lane so that the rays' latency chains
+    /// (two divisions, then a square root and three more divisions, each waiting on the
+    /// last) overlap. One ray at a time, a path render's camera rays cost about 140 cycles
+    /// each, most of them waiting on that chain.
+    pub fn rays(
+        &self,
+        x: &[f64; RAYS_AT_ONCE],
+        y: &[f64; RAYS_AT_ONCE],
+        width: u32,
+        height: u32,
+    ) -> [Ray; RAYS_AT_ONCE] {
+        let ViewKind::Perspective { half_w, half_h } = self.kind else {
+            return std::array::from_fn(|i| self.ray(x[i], y[i], width, height));
+        };
+        let (w, h) = (width as f64, height as f64);
+        let a: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| (2.0 * x[i] / w - 1.0) * half_w);
+        let b: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| (1.0 - 2.0 * y[i] / h) * half_h);
+        let d: [[f64; 3]; RAYS_AT_ONCE] = std::array::from_fn(|i| {
+            std::array::from_fn(|k| self.forward[k] + a[i] * self.right[k] + b[i] * self.up[k])
+        });
+        let l: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| {
+            (d[i][0] * d[i][0] + d[i][1] * d[i][1] + d[i][2] * d[i][2]).sqrt()
+        });
+        let org = self.eye.map(|v| v as f32);
+        std::array::from_fn(|i| {
+            let dir = if l[i] > 0.0 && l[i].is_finite() {
+                [d[i][0] / l[i], d[i][1] / l[i], d[i][2] / l[i]]
+            } else {
+                self.forward
+            };
+            Ray {
+                org,
+                tmin: 0.0,
+                dir: dir.map(|v| v as f32),
+                tmax: f32::INFINITY,
+            }
+        })
+    }
 }
+
+/// How many rays [`ViewCamera::rays`] makes at once.
+pub const RAYS_AT_ONCE: usize = 8;
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rays_at_once_are_the_single_rays_bit_for_bit() {
+        let cams = [
+            ViewCamera::look_at(
+                [0.3, -1.0, 5.0],
+                [0.1, 0.2, -0.7],
+                [0.0, 1.0, 0.0],
+                37.0,
+                1.3,
+            )
+            .unwrap(),
+            ViewCamera::look_at([1e4, 2e-3, -7.0], [0.0; 3], [0.0, 0.0, 1.0], 120.0, 0.5).unwrap(),
+        ];
+        let mut seed = 12345u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for cam in &cams {
+            for _ in 0..200 {
+                let x: [f64; RAYS_AT_ONCE] = std::array::from_fn(|_| next() * 641.0);
+                let y: [f64; RAYS_AT_ONCE] = std::array::from_fn(|_| next() * 481.0);
+                let many = cam.rays(&x, &y, 640, 480);
+                for i in 0..RAYS_AT_ONCE {
+                    let one = cam.ray(x[i], y[i], 640, 480);
+                    assert_eq!(
+                        bytemuck::bytes_of(&many[i]),
+                        bytemuck::bytes_of(&one),
+                        "lane {i}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn look_at_centre_ray_points_at_target() {

@@ -16,7 +16,7 @@ pub mod texture;
 
 use crate::accel::{Intersector, Query};
 use crate::geometry::{dot, Hit, Ray, Triangle};
-use camera::ViewCamera;
+use camera::{ViewCamera, RAYS_AT_ONCE};
 use glam::Vec3;
 use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
@@ -438,6 +438,8 @@ struct WaveOut<'a> {
 /// `perf`), so they live here across the frame and only grow.
 #[derive(Default)]
 struct Scratch {
+    /// The wave's camera rays, in groups of [`RAYS_AT_ONCE`].
+    cameras: Vec<[Ray; RAYS_AT_ONCE]>,
     paths: Vec<PathState>,
     steps: Vec<Step>,
     trace: TraceBufs,
@@ -538,18 +540,35 @@ fn render_wave(
     let h = options.height;
     let spp = options.spp.max(1);
     let Scratch {
+        cameras,
         paths,
         steps,
         trace,
         shadows,
     } = scratch;
+    // The camera rays first, a group of pixels at a time (the last group padded with its
+    // last pixel), then the paths.
+    cameras.clear();
+    cameras.par_extend(
+        (start..end)
+            .into_par_iter()
+            .step_by(RAYS_AT_ONCE)
+            .map(|first| {
+                let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
+                for i in 0..RAYS_AT_ONCE {
+                    let p = (first + i).min(end - 1);
+                    let (jx, jy) = pixel_sample(options.seed, p, s, spp);
+                    x[i] = (p % w as usize) as f64 + jx;
+                    y[i] = (p / w as usize) as f64 + jy;
+                }
+                camera.rays(&x, &y, w, h)
+            }),
+    );
     paths.clear();
     paths.par_extend((start..end).into_par_iter().map(|p| {
+        let i = p - start;
         let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-        let (jx, jy) = pixel_sample(options.seed, p, s, spp);
-        let (x, y) = ((p % w as usize) as f64, (p / w as usize) as f64);
-        let ray = camera.ray(x + jx, y + jy, w, h);
-        PathState::new(p - start, ray, rng)
+        PathState::new(i, cameras[i / RAYS_AT_ONCE][i % RAYS_AT_ONCE], rng)
     }));
     trace_closest(frame, paths, trace, stats);
     for (c, p) in wave.covered.iter_mut().zip(paths.iter()) {
