@@ -24,7 +24,7 @@ if [[ $# -eq 0 ]]; then
   set -- "$scenes_dir/nefertiti.from-obj.glb" "$scenes_dir/ReciprocatingSaw.glb" \
     "$scenes_dir/MetalRoughSpheresNoTextures.glb"
 fi
-nice -n 19 cargo build --release --features embree --bin rayd --example trace_loop --example export_view
+nice -n 19 cargo build --quiet --release --features embree --bin rayd --example trace_loop --example export_view
 mkdir -p "$out"
 uptime
 for scene in "$@"; do
