@@ -124,12 +124,12 @@ fn speedup(s2: f64, threads: usize) -> f64 {
     (threads.max(1) as f64).powf(s2.log2())
 }
 
-/// log₂ T bent by the model's `ray_shape[i]`: DACRT's per-ray cost grows faster with the
-/// scene than the BVH's (on 1M triangles it traces at half the BVH's rate, on 100K at
-/// about the BVH's, on 5K faster). The bend is held to the range it was fitted on
-/// (4K–1M triangles): below it a ray's fixed costs dominate.
-fn shaped(lg: f64, i: usize) -> f64 {
-    lg * (lg.clamp(12.0, 20.0) / 16.0).powf(MODEL.ray_shape[i])
+/// log₂ T bent by one of the model's `ray_shape` exponents: DACRT's per-ray cost grows
+/// faster with the scene than the BVH's (on 1M triangles it traces at half the BVH's rate,
+/// on 100K at about the BVH's, on 5K faster). The bend is held to the range it was fitted
+/// on (4K–1M triangles): below it a ray's fixed costs dominate.
+fn shaped(lg: f64, exponent: f64) -> f64 {
+    lg * (lg.clamp(12.0, 20.0) / 16.0).powf(exponent)
 }
 
 fn quality_index(q: BuildQuality) -> usize {
@@ -160,7 +160,11 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
                 Geometry::Refittable => (m.refit * t, m.refit_slowdown),
                 Geometry::Built => (0.0, 1.0),
             };
-            let trace = r * m.bvh_ray * m.trace[quality_index(job.quality)] * shaped(lg, 0) * slow;
+            let trace = r
+                * m.bvh_ray
+                * m.trace[quality_index(job.quality)]
+                * shaped(lg, m.ray_shape[0])
+                * slow;
             Some(
                 prep / speedup(m.speedup2[0], job.threads)
                     + trace / speedup(m.speedup2[1], job.threads),
@@ -169,7 +173,7 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
         AccelKind::DacrtSampled => {
             let prep = m.dacrt_pre * t;
             let top = job.batches.max(1) as f64 * m.dacrt_top * t;
-            let trace = r * m.dacrt_ray * shaped(lg, 1);
+            let trace = r * m.dacrt_ray * shaped(lg, m.ray_shape[1]);
             Some((prep + top + trace) / speedup(m.speedup2[2], job.threads))
         }
         // Every ray against every triangle, eight at a time: only for a handful.

@@ -75,9 +75,17 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
-    let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// `v` divided by its length `l` (from [`norm`]), where that is a positive number.
+fn unit_from(v: [f64; 3], l: f64) -> Option<[f64; 3]> {
     (l > 0.0 && l.is_finite()).then(|| [v[0] / l, v[1] / l, v[2] / l])
+}
+
+fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
+    unit_from(v, norm(v))
 }
 
 impl ViewCamera {
@@ -213,74 +221,50 @@ impl ViewCamera {
     /// centres at +0.5) of a `width` × `height` image; unit direction, `[0, inf]`.
     #[inline]
     pub fn ray(&self, x: f64, y: f64, width: u32, height: u32) -> Ray {
-        let sx = 2.0 * x / width as f64 - 1.0;
-        let sy = 1.0 - 2.0 * y / height as f64;
-        let (org, dir) = match self.kind {
-            ViewKind::Perspective { half_w, half_h } => {
-                let (a, b) = (sx * half_w, sy * half_h);
-                let d = [
-                    self.forward[0] + a * self.right[0] + b * self.up[0],
-                    self.forward[1] + a * self.right[1] + b * self.up[1],
-                    self.forward[2] + a * self.right[2] + b * self.up[2],
-                ];
-                (self.eye, unit(d).unwrap_or(self.forward))
-            }
-            ViewKind::Orthographic { half_w, half_h } => {
-                let (a, b) = (sx * half_w, sy * half_h);
-                let o = [
-                    self.eye[0] + a * self.right[0] + b * self.up[0],
-                    self.eye[1] + a * self.right[1] + b * self.up[1],
-                    self.eye[2] + a * self.right[2] + b * self.up[2],
-                ];
-                (o, self.forward)
-            }
+        self.rays(&[x], &[y], width, height)[0]
+    }
+
+    /// [`ViewCamera::ray`] of `N` image positions, each lane computed exactly as a lone
+    /// ray is, but stage by stage across the lanes, so that the rays' latency chains (two
+    /// divisions, then a square root and three more divisions, each waiting on the last)
+    /// overlap. One at a time, a path render's camera rays cost about 140 cycles each,
+    /// most of them waiting on that chain; [`RAYS_AT_ONCE`] at a time they overlap.
+    pub fn rays<const N: usize>(
+        &self,
+        x: &[f64; N],
+        y: &[f64; N],
+        width: u32,
+        height: u32,
+    ) -> [Ray; N] {
+        let (w, h) = (width as f64, height as f64);
+        let (half_w, half_h) = match self.kind {
+            ViewKind::Perspective { half_w, half_h } => (half_w, half_h),
+            ViewKind::Orthographic { half_w, half_h } => (half_w, half_h),
         };
-        Ray {
+        let a: [f64; N] = std::array::from_fn(|i| (2.0 * x[i] / w - 1.0) * half_w);
+        let b: [f64; N] = std::array::from_fn(|i| (1.0 - 2.0 * y[i] / h) * half_h);
+        // The image-plane point: a direction from the eye, or an origin beside it.
+        let along = |base: [f64; 3], i: usize| -> [f64; 3] {
+            std::array::from_fn(|k| base[k] + a[i] * self.right[k] + b[i] * self.up[k])
+        };
+        let ray = |org: [f64; 3], dir: [f64; 3]| Ray {
             org: org.map(|v| v as f32),
             tmin: 0.0,
             dir: dir.map(|v| v as f32),
             tmax: f32::INFINITY,
-        }
-    }
-
-    /// [`ViewCamera::ray`] of [`RAYS_AT_ONCE`] image positions, bit for bit: the same
-    /// operations in the same order, written lane by lane so that the rays' latency chains
-    /// (two divisions, then a square root and three more divisions, each waiting on the
-    /// last) overlap. One ray at a time, a path render's camera rays cost about 140 cycles
-    /// each, most of them waiting on that chain.
-    pub fn rays(
-        &self,
-        x: &[f64; RAYS_AT_ONCE],
-        y: &[f64; RAYS_AT_ONCE],
-        width: u32,
-        height: u32,
-    ) -> [Ray; RAYS_AT_ONCE] {
-        let ViewKind::Perspective { half_w, half_h } = self.kind else {
-            return std::array::from_fn(|i| self.ray(x[i], y[i], width, height));
         };
-        let (w, h) = (width as f64, height as f64);
-        let a: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| (2.0 * x[i] / w - 1.0) * half_w);
-        let b: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| (1.0 - 2.0 * y[i] / h) * half_h);
-        let d: [[f64; 3]; RAYS_AT_ONCE] = std::array::from_fn(|i| {
-            std::array::from_fn(|k| self.forward[k] + a[i] * self.right[k] + b[i] * self.up[k])
-        });
-        let l: [f64; RAYS_AT_ONCE] = std::array::from_fn(|i| {
-            (d[i][0] * d[i][0] + d[i][1] * d[i][1] + d[i][2] * d[i][2]).sqrt()
-        });
-        let org = self.eye.map(|v| v as f32);
-        std::array::from_fn(|i| {
-            let dir = if l[i] > 0.0 && l[i].is_finite() {
-                [d[i][0] / l[i], d[i][1] / l[i], d[i][2] / l[i]]
-            } else {
-                self.forward
-            };
-            Ray {
-                org,
-                tmin: 0.0,
-                dir: dir.map(|v| v as f32),
-                tmax: f32::INFINITY,
+        match self.kind {
+            ViewKind::Perspective { .. } => {
+                let d: [[f64; 3]; N] = std::array::from_fn(|i| along(self.forward, i));
+                let l: [f64; N] = std::array::from_fn(|i| norm(d[i]));
+                std::array::from_fn(|i| {
+                    ray(self.eye, unit_from(d[i], l[i]).unwrap_or(self.forward))
+                })
             }
-        })
+            ViewKind::Orthographic { .. } => {
+                std::array::from_fn(|i| ray(along(self.eye, i), self.forward))
+            }
+        }
     }
 }
 
