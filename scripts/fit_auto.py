@@ -11,9 +11,11 @@ turn (files whose names share the prefix before the first `_` are one run) and w
 scene held out in turn.
 
     scripts/fit_auto.py r1_dragon.txt r1_brainstem.txt r2_dragon.txt ...
+    git show 7eb0892:src/accel/auto.rs > old.rs; scripts/fit_auto.py --model old.rs --score-only r*.txt
 
 Needs numpy: the grid has about a million points.
 """
+import argparse
 import itertools
 import math
 import os
@@ -60,12 +62,21 @@ def parse(path):
     return out
 
 
-def current():
-    """The MODEL constants of src/accel/auto.rs."""
-    src = open(os.path.join(os.path.dirname(__file__), "..", "src", "accel", "auto.rs")).read()
+MODEL_RS = os.path.join(os.path.dirname(__file__), "..", "src", "accel", "auto.rs")
+
+
+def current(path=MODEL_RS):
+    """The MODEL constants of `path` (src/accel/auto.rs, or an earlier version of it:
+    `git show COMMIT:src/accel/auto.rs`; constants it lacks take the value that leaves
+    the model as it was before them)."""
+    src = open(path).read()
     block = src[src.index("const MODEL: Model"):]
     block = block[:block.index("};")]
-    num = lambda k: [float(x) for x in re.search(k + r": \[?([^\]\n]+)\]?,", block).group(1).split(",")]
+    absent = {"ray_shape": "0.0, 0.0", "trace": "1.0, 1.0, 1.0"}
+
+    def num(k):
+        m = re.search(k + r": \[?([^\]\n]+)\]?,", block)
+        return [float(x) for x in (m.group(1) if m else absent[k]).split(",")]
     return dict(build=num("build")[0], refit=num("refit")[0], bvh_ray=num("bvh_ray")[0],
                 slow=num("refit_slowdown")[0], pre=num("dacrt_pre")[0], top=num("dacrt_top")[0],
                 dacrt_ray=num("dacrt_ray")[0], s_b=num("speedup2")[0], s_t=num("speedup2")[1],
@@ -180,12 +191,20 @@ def show(p, s):
 
 
 def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("tables", nargs="+")
+    ap.add_argument("--model", default=MODEL_RS,
+                    help="the auto.rs whose constants are scored (default: this checkout's)")
+    ap.add_argument("--score-only", action="store_true", help="score them; no search")
+    args = ap.parse_args()
     sits = {}
-    for f in sys.argv[1:]:
+    for f in args.tables:
         sits.update(parse(f))
     every = Situations(sits)
-    base = current()
-    print("src/accel/auto.rs:", show(base, every), base)
+    base = current(args.model)
+    print(f"{args.model}:", show(base, every), base)
+    if args.score_only:
+        return
     p = search(base, every)
     print("grid best, in sample:", show(p, every), p)
     # A run is the files sharing a name's prefix before `_`; a scene, its triangle count.
