@@ -196,35 +196,51 @@ impl Server {
         s.write_all(head.as_bytes()).map_err(fail)?;
         s.write_all(body).map_err(fail)?;
         let sent = t0.elapsed().as_secs_f64();
-        let mut raw = Vec::with_capacity(1 << 16);
-        let mut buf = vec![0u8; 1 << 20];
+        // The head first, then the body straight into memory of its announced length, as a
+        // client that cares about large answers reads it (no growing buffer, no second copy).
+        let mut raw = Vec::with_capacity(1 << 14);
+        let mut buf = [0u8; 1 << 14];
         let mut first = None;
-        loop {
+        let split = loop {
             let n = s.read(&mut buf).map_err(fail)?;
             if n == 0 {
-                break;
+                return Err(format!("{method} {path}: the connection closed before the head"));
             }
             first.get_or_insert_with(|| t0.elapsed().as_secs_f64());
             raw.extend_from_slice(&buf[..n]);
-        }
-        let done = t0.elapsed().as_secs_f64();
-        let split = raw
-            .windows(4)
-            .position(|w| w == b"\r\n\r\n")
-            .ok_or_else(|| format!("{method} {path}: no answer head"))?;
+            if let Some(p) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+                break p;
+            }
+        };
         let head = String::from_utf8_lossy(&raw[..split]).to_string();
         let status = head
             .split(' ')
             .nth(1)
             .and_then(|c| c.parse().ok())
             .ok_or_else(|| format!("{method} {path}: bad status line"))?;
-        let headers = head
+        let headers: Vec<(String, String)> = head
             .split("\r\n")
             .skip(1)
             .filter_map(|l| l.split_once(':'))
             .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
             .collect();
-        raw.drain(..split + 4);
+        let length = headers
+            .iter()
+            .find(|(k, _)| k == "content-length")
+            .and_then(|(_, v)| v.parse::<usize>().ok());
+        let mut body = Vec::with_capacity(length.unwrap_or(0));
+        body.extend_from_slice(&raw[split + 4..]);
+        match length {
+            Some(len) => {
+                let more = len.saturating_sub(body.len()) as u64;
+                (&mut s).take(more).read_to_end(&mut body).map_err(fail)?;
+            }
+            None => {
+                s.read_to_end(&mut body).map_err(fail)?;
+            }
+        }
+        let done = t0.elapsed().as_secs_f64();
+        let raw = body;
         Ok(Timed {
             status,
             headers,

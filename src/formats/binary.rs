@@ -289,10 +289,12 @@ pub struct Ray1Sink {
     header: [u8; HEADER_BYTES],
     header_len: usize,
     count: usize,
-    /// The rays of the current segment (all of them, unsegmented).
+    /// The whole rays of the current segment (all of them, unsegmented) received so far.
     rays: Vec<Ray>,
-    /// Record bytes received into `rays`.
-    filled: usize,
+    /// The first bytes of the ray after `rays`, when a piece ended inside it.
+    partial: [u8; 32],
+    /// How many bytes of `partial` are in.
+    partial_len: usize,
     /// Rays per segment (`usize::MAX`: one segment).
     segment: usize,
     /// Rays in the segments completed before `rays`.
@@ -311,7 +313,8 @@ impl Ray1Sink {
             header_len: 0,
             count: 0,
             rays: Vec::new(),
-            filled: 0,
+            partial: [0; 32],
+            partial_len: 0,
             segment: usize::MAX,
             taken: 0,
             ready: Vec::new(),
@@ -343,7 +346,12 @@ impl Ray1Sink {
 
     /// Whole rays received so far.
     pub fn rays_received(&self) -> usize {
-        self.taken + self.filled / 32
+        self.taken + self.rays.len()
+    }
+
+    /// Record bytes received into the current segment.
+    fn filled(&self) -> usize {
+        32 * self.rays.len() + self.partial_len
     }
 
     fn wrong_length(&self, len: u128) -> BinaryError {
@@ -368,32 +376,55 @@ impl Ray1Sink {
             }
             self.start()?;
         }
-        let total = 32 * self.taken + self.filled + chunk.len();
+        let total = 32 * self.taken + self.filled() + chunk.len();
         if total > 32 * self.count {
             return Err(self.wrong_length(HEADER_BYTES as u128 + total as u128));
         }
         while !chunk.is_empty() {
             let seg = self.segment_rays();
-            let take = chunk.len().min(32 * seg - self.filled);
-            let end = self.filled + take;
-            if end > 32 * self.rays.len() {
-                // Growing mode (no length hint): at least double, at most the segment.
-                let want = end.div_ceil(32).max(2 * self.rays.len()).min(seg);
-                self.rays.resize(want, Ray::default());
+            if self.partial_len > 0 {
+                // Complete the ray the last piece broke off inside.
+                let take = chunk.len().min(32 - self.partial_len);
+                self.partial[self.partial_len..self.partial_len + take]
+                    .copy_from_slice(&chunk[..take]);
+                self.partial_len += take;
+                chunk = &chunk[take..];
+                if self.partial_len < 32 {
+                    break;
+                }
+                self.partial_len = 0;
+                self.rays.push(bytemuck::pod_read_unaligned(&self.partial));
+            } else {
+                // Whole rays straight from the piece into the segment's memory: each record
+                // is read as a ray (the bytes' alignment is the network's), never zeroed first.
+                let whole = (chunk.len() / 32).min(seg - self.rays.len());
+                let (records, rest) = chunk.split_at(32 * whole);
+                if self.rays.capacity() < self.rays.len() + whole {
+                    // Growing mode (no length hint): at least double, at most the segment.
+                    let want = (self.rays.len() + whole).max(2 * self.rays.len()).min(seg);
+                    self.rays.reserve_exact(want - self.rays.len());
+                }
+                self.rays.extend(
+                    records
+                        .chunks_exact(32)
+                        .map(bytemuck::pod_read_unaligned::<Ray>),
+                );
+                chunk = rest;
+                if whole == 0 && !chunk.is_empty() && self.rays.len() < seg {
+                    let take = chunk.len().min(32);
+                    self.partial[..take].copy_from_slice(&chunk[..take]);
+                    self.partial_len = take;
+                    chunk = &chunk[take..];
+                }
             }
-            let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut self.rays);
-            bytes[self.filled..end].copy_from_slice(&chunk[..take]);
-            self.filled = end;
-            chunk = &chunk[take..];
-            if self.filled == 32 * seg && self.taken + seg < self.count {
+            if self.rays.len() == seg && self.taken + seg < self.count {
                 // A segment is complete and more follow: hand it out, start the next.
                 let mut done = std::mem::take(&mut self.rays);
                 to_native(&mut done);
                 self.ready.push(done);
                 self.taken += seg;
-                self.filled = 0;
                 if self.hint.is_some() {
-                    self.rays = bytemuck::zeroed_vec(self.segment_rays());
+                    self.rays = Vec::with_capacity(self.segment_rays());
                 }
             }
         }
@@ -421,7 +452,7 @@ impl Ray1Sink {
             if len as u128 != HEADER_BYTES as u128 + 32 * self.count as u128 {
                 return Err(self.wrong_length(len as u128));
             }
-            self.rays = bytemuck::zeroed_vec(self.segment_rays());
+            self.rays = Vec::with_capacity(self.segment_rays());
         }
         Ok(())
     }
@@ -434,12 +465,11 @@ impl Ray1Sink {
                 len: self.header_len,
             });
         }
-        if self.taken + self.filled / 32 != self.count || !self.filled.is_multiple_of(32) {
+        if self.taken + self.rays.len() != self.count || self.partial_len != 0 {
             return Err(self.wrong_length(
-                HEADER_BYTES as u128 + 32 * self.taken as u128 + self.filled as u128,
+                HEADER_BYTES as u128 + 32 * self.taken as u128 + self.filled() as u128,
             ));
         }
-        self.rays.truncate(self.count - self.taken);
         to_native(&mut self.rays);
         Ok(self.rays)
     }
@@ -625,7 +655,16 @@ mod tests {
             .collect();
         let bytes = write_rays(&all);
         for hint in [None, Some(bytes.len() as u64)] {
-            for (segment, chunk) in [(1, 7), (10, 1), (10, 33), (64, 100), (103, 5), (500, 64)] {
+            for (segment, chunk) in [
+                (1, 7),
+                (10, 1),
+                (10, 33),
+                (7, 45),
+                (2, 31),
+                (64, 100),
+                (103, 5),
+                (500, 64),
+            ] {
                 let mut sink = Ray1Sink::new(usize::MAX, hint).segmented(segment);
                 let mut got = Vec::new();
                 for c in bytes.chunks(chunk) {
@@ -634,7 +673,7 @@ mod tests {
                         assert_eq!(seg.len(), segment, "only whole segments before the end");
                         got.extend(seg);
                     }
-                    assert_eq!(sink.rays_received(), got.len() + sink.filled / 32);
+                    assert_eq!(sink.rays_received(), got.len() + sink.rays.len());
                 }
                 let last = sink.finish().unwrap();
                 assert!(!last.is_empty() && last.len() <= segment);
