@@ -15,7 +15,7 @@ use serde_json::json;
 use super::{App, AppError, TraceParams};
 use crate::formats::binary::{read_tri, tri_count};
 use crate::formats::{LoadOptions, Parts};
-use crate::geometry::{Ray, Triangle};
+use crate::geometry::{RaySegment, Triangle};
 use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
 use crate::scene::Scene;
 use crate::store::{BlobId, NewScene, SceneRecord};
@@ -585,7 +585,7 @@ impl TraceIntake {
     }
 
     /// Hands over the next rays of the batch, in order.
-    pub fn send(&mut self, rays: Vec<Ray>) {
+    pub fn send(&mut self, rays: RaySegment) {
         if let TraceIntake::Streamed { arrive, .. } = self {
             // A trace that already stopped (bad rays, say) answers at `finish`.
             let _ = arrive.send(trace::Arrival::Rays(rays));
@@ -593,7 +593,7 @@ impl TraceIntake {
     }
 
     /// Hands over the last rays of a complete, well-formed body and waits for the answer.
-    pub async fn finish(self, rays: Vec<Ray>) -> Result<(HitBody, TraceReport), AppError> {
+    pub async fn finish(self, rays: RaySegment) -> Result<(HitBody, TraceReport), AppError> {
         let done = match self {
             TraceIntake::Streamed { arrive, done } => {
                 let _ = arrive.send(trace::Arrival::Rays(rays));
@@ -606,9 +606,16 @@ impl TraceIntake {
                 engine,
                 ticket,
             } => {
-                let mut rays = rays;
+                let RaySegment {
+                    mut rays,
+                    all_valid,
+                } = rays;
                 on_trace_thread(move || {
-                    let invalid = trace::validate(&mut rays, request.invalid)?;
+                    let invalid = if all_valid {
+                        0
+                    } else {
+                        trace::validate(&mut rays, request.invalid)?
+                    };
                     let control = engine.control(Default::default(), None, ticket);
                     engine.trace(&geometry, &rays, &request, invalid, &control)
                 })?

@@ -5,7 +5,7 @@
 //! header and the exact body length (without overflow, before allocating) and say which
 //! rule failed; `proto/binary-formats.md` is the long form.
 
-use crate::geometry::{Hit, Ray, Triangle};
+use crate::geometry::{Hit, Ray, RaySegment, Triangle};
 
 /// `RAY1` as a little-endian u32.
 pub const RAY1_MAGIC: u32 = u32::from_le_bytes(*b"RAY1");
@@ -295,12 +295,14 @@ pub struct Ray1Sink {
     partial: [u8; 32],
     /// How many bytes of `partial` are in.
     partial_len: usize,
+    /// Every ray in `rays` passed [`Ray::is_valid`] (checked as it was copied in).
+    valid: bool,
     /// Rays per segment (`usize::MAX`: one segment).
     segment: usize,
     /// Rays in the segments completed before `rays`.
     taken: usize,
     /// Completed segments not yet taken.
-    ready: Vec<Vec<Ray>>,
+    ready: Vec<RaySegment>,
 }
 
 impl Ray1Sink {
@@ -315,6 +317,7 @@ impl Ray1Sink {
             rays: Vec::new(),
             partial: [0; 32],
             partial_len: 0,
+            valid: true,
             segment: usize::MAX,
             taken: 0,
             ready: Vec::new(),
@@ -330,7 +333,7 @@ impl Ray1Sink {
     }
 
     /// Segments completed since the last call, in order.
-    pub fn take_ready(&mut self) -> std::vec::Drain<'_, Vec<Ray>> {
+    pub fn take_ready(&mut self) -> std::vec::Drain<'_, RaySegment> {
         self.ready.drain(..)
     }
 
@@ -393,7 +396,9 @@ impl Ray1Sink {
                     break;
                 }
                 self.partial_len = 0;
-                self.rays.push(bytemuck::pod_read_unaligned(&self.partial));
+                let ray: Ray = bytemuck::pod_read_unaligned(&self.partial);
+                self.valid &= ray.is_valid();
+                self.rays.push(ray);
             } else {
                 // Whole rays straight from the piece into the segment's memory: each record
                 // is read as a ray (the bytes' alignment is the network's), never zeroed first.
@@ -404,11 +409,18 @@ impl Ray1Sink {
                     let want = (self.rays.len() + whole).max(2 * self.rays.len()).min(seg);
                     self.rays.reserve_exact(want - self.rays.len());
                 }
+                let from = self.rays.len();
                 self.rays.extend(
                     records
                         .chunks_exact(32)
                         .map(bytemuck::pod_read_unaligned::<Ray>),
                 );
+                // Checked while the piece is still in cache (little-endian: the bytes are the
+                // rays; big-endian swaps later, so it leaves the check to the consumer).
+                self.valid &= cfg!(target_endian = "little")
+                    && self.rays[from..]
+                        .iter()
+                        .fold(true, |all, r| all & r.is_valid());
                 chunk = rest;
                 if whole == 0 && !chunk.is_empty() && self.rays.len() < seg {
                     let take = chunk.len().min(32);
@@ -421,7 +433,10 @@ impl Ray1Sink {
                 // A segment is complete and more follow: hand it out, start the next.
                 let mut done = std::mem::take(&mut self.rays);
                 to_native(&mut done);
-                self.ready.push(done);
+                self.ready.push(RaySegment {
+                    rays: done,
+                    all_valid: std::mem::replace(&mut self.valid, true),
+                });
                 self.taken += seg;
                 if self.hint.is_some() {
                     self.rays = Vec::with_capacity(self.segment_rays());
@@ -458,7 +473,12 @@ impl Ray1Sink {
     }
 
     /// The rays, once the body is complete: all of them, or, segmented, the last segment.
-    pub fn finish(mut self) -> Result<Vec<Ray>, BinaryError> {
+    pub fn finish(self) -> Result<Vec<Ray>, BinaryError> {
+        Ok(self.finish_segment()?.rays)
+    }
+
+    /// [`Ray1Sink::finish`], with what reading learned of the rays' validity.
+    pub fn finish_segment(mut self) -> Result<RaySegment, BinaryError> {
         if self.header_len < HEADER_BYTES {
             return Err(BinaryError::ShortHeader {
                 kind: "RAY1",
@@ -471,7 +491,10 @@ impl Ray1Sink {
             ));
         }
         to_native(&mut self.rays);
-        Ok(self.rays)
+        Ok(RaySegment {
+            rays: self.rays,
+            all_valid: self.valid,
+        })
     }
 }
 
@@ -670,8 +693,9 @@ mod tests {
                 for c in bytes.chunks(chunk) {
                     sink.push(c).unwrap();
                     for seg in sink.take_ready() {
-                        assert_eq!(seg.len(), segment, "only whole segments before the end");
-                        got.extend(seg);
+                        assert_eq!(seg.rays.len(), segment, "only whole segments before the end");
+                        assert!(seg.all_valid);
+                        got.extend(seg.rays);
                     }
                     assert_eq!(sink.rays_received(), got.len() + sink.rays.len());
                 }
@@ -690,6 +714,35 @@ mod tests {
         ));
         let mut sink = Ray1Sink::new(usize::MAX, None).segmented(10);
         assert!(sink.push(&[&bytes[..], &[0u8; 32][..]].concat()).is_err());
+    }
+
+    #[test]
+    fn a_sink_flags_the_segments_it_cannot_vouch_for() {
+        let mut all: Vec<Ray> = (0..40)
+            .map(|i| Ray {
+                org: [i as f32, 0.0, 0.0],
+                tmin: 0.0,
+                dir: [0.0, 0.0, 1.0],
+                tmax: 1.0,
+            })
+            .collect();
+        all[13].dir = [0.0; 3];
+        all[31].org[2] = f32::NAN;
+        let bytes = write_rays(&all);
+        for chunk in [1, 31, 32, 33, 1000] {
+            let mut sink = Ray1Sink::new(usize::MAX, Some(bytes.len() as u64)).segmented(10);
+            let mut flags = Vec::new();
+            for c in bytes.chunks(chunk) {
+                sink.push(c).unwrap();
+                flags.extend(sink.take_ready().map(|s| s.all_valid));
+            }
+            flags.push(sink.finish_segment().unwrap().all_valid);
+            assert_eq!(
+                flags,
+                [true, false, true, false],
+                "segments 1 and 3 hold the bad rays (chunk {chunk})"
+            );
+        }
     }
 
     #[test]

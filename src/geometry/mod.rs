@@ -8,7 +8,7 @@ mod triangle;
 
 pub use aabb::Aabb;
 pub use hit::Hit;
-pub use ray::{InvalidRays, Ray, RayError};
+pub use ray::{InvalidRays, Ray, RayError, RaySegment};
 pub use triangle::Triangle;
 
 /// `a - b` for 3-vectors.

@@ -46,6 +46,28 @@ impl std::fmt::Display for RayError {
     }
 }
 
+/// Rays as a reader hands them on, with what reading them learned: a reader that checks
+/// each ray while it is still in cache ([`Ray::is_valid`], a few instructions per ray) spares
+/// the consumer a second pass over memory that has gone cold.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RaySegment {
+    /// The rays, in order.
+    pub rays: Vec<Ray>,
+    /// Every ray passed [`Ray::is_valid`]. `false` says nothing: check them
+    /// ([`Ray::validate_batch`]).
+    pub all_valid: bool,
+}
+
+impl RaySegment {
+    /// Rays nobody has checked yet.
+    pub fn unchecked(rays: Vec<Ray>) -> RaySegment {
+        RaySegment {
+            rays,
+            all_valid: false,
+        }
+    }
+}
+
 /// Summary of the invalid rays in a batch: enough for the contract's error message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct InvalidRays {
@@ -117,7 +139,7 @@ impl Ray {
 
     /// Whether [`Ray::check`] passes, computed without branches.
     #[inline]
-    fn is_valid(&self) -> bool {
+    pub fn is_valid(&self) -> bool {
         const EXP: u32 = 0x7f80_0000;
         let finite = |x: f32| x.to_bits() & EXP != EXP;
         let [d0, d1, d2] = self.dir;

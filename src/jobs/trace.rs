@@ -150,18 +150,21 @@ struct BodyWriter {
 }
 
 impl BodyWriter {
-    /// A body for `n` rays, header written, every record still empty.
+    /// A body for `n` rays, header written. Its memory is reserved whole but initialised a
+    /// range at a time, just before that range is traced, so that a streamed trace clears
+    /// each segment's records while they are about to be written (in cache), not the whole
+    /// body up front (a cold pass over all of it).
     fn new(format: HitFormat, n: usize) -> BodyWriter {
         let header = hit1_header(format, n);
         let body = match format {
             HitFormat::TPrimUv => {
-                let mut records: Vec<Hit> = bytemuck::zeroed_vec(n + 1);
-                bytemuck::cast_slice_mut::<Hit, u8>(&mut records[..1]).copy_from_slice(&header);
+                let mut records: Vec<Hit> = Vec::with_capacity(n + 1);
+                records.push(bytemuck::pod_read_unaligned(&header));
                 HitBody::Records(records)
             }
             _ => {
-                let mut out = vec![0u8; HEADER_BYTES + format.record_bytes() * n];
-                out[..HEADER_BYTES].copy_from_slice(&header);
+                let mut out = Vec::with_capacity(HEADER_BYTES + format.record_bytes() * n);
+                out.extend_from_slice(&header);
                 HitBody::Packed(out)
             }
         };
@@ -180,6 +183,8 @@ impl BodyWriter {
         let record = self.format.record_bytes();
         match (&mut self.body, self.format) {
             (HitBody::Records(records), _) => {
+                debug_assert_eq!(records.len(), 1 + first, "ranges come in order");
+                records.resize(1 + first + rays.len(), bytemuck::Zeroable::zeroed());
                 let out = &mut records[1 + first..1 + first + rays.len()];
                 accel.trace(rays, query, out);
                 if cfg!(target_endian = "big") {
@@ -190,6 +195,8 @@ impl BodyWriter {
             }
             (HitBody::Packed(bytes), HitFormat::Occluded) => {
                 let start = HEADER_BYTES + first;
+                debug_assert_eq!(bytes.len(), start, "ranges come in order");
+                bytes.resize(start + rays.len(), 0);
                 let out = &mut bytes[start..start + rays.len()];
                 accel.occluded(rays, out);
                 for f in out {
@@ -200,6 +207,8 @@ impl BodyWriter {
                 let mut hits: Vec<Hit> = bytemuck::zeroed_vec(rays.len());
                 accel.trace(rays, query, &mut hits);
                 let start = HEADER_BYTES + record * first;
+                debug_assert_eq!(bytes.len(), start, "ranges come in order");
+                bytes.resize(start + record * rays.len(), 0);
                 let out = &mut bytes[start..start + record * rays.len()];
                 for (h, o) in hits.iter().zip(out.chunks_exact_mut(record)) {
                     o[..4].copy_from_slice(&h.t.to_le_bytes());
@@ -212,6 +221,10 @@ impl BodyWriter {
     }
 
     fn finish(self) -> HitBody {
+        debug_assert_eq!(
+            self.body.len(),
+            HEADER_BYTES + self.format.record_bytes() * self.n
+        );
         self.body
     }
 }
@@ -219,8 +232,8 @@ impl BodyWriter {
 /// What the reader of a streamed batch hands the trace: the next rays in order, or the end
 /// of a body that arrived whole.
 pub enum Arrival {
-    /// The next rays of the batch.
-    Rays(Vec<Ray>),
+    /// The next rays of the batch (checked or not as they were read).
+    Rays(crate::geometry::RaySegment),
     /// Every ray has arrived and the body was well formed.
     End,
 }
@@ -265,8 +278,8 @@ impl Engine {
         let mut received = 0usize;
         let mut trace_seconds = 0.0;
         loop {
-            let mut rays = match arrivals.recv() {
-                Ok(Arrival::Rays(rays)) => rays,
+            let (mut rays, all_valid) = match arrivals.recv() {
+                Ok(Arrival::Rays(seg)) => (seg.rays, seg.all_valid),
                 Ok(Arrival::End) => break,
                 Err(_) => return Err(JobError::Cancelled),
             };
@@ -276,7 +289,12 @@ impl Engine {
                     detail: format!("more than the {count} rays announced"),
                 });
             }
-            if let Some(b) = Ray::validate_batch(&mut rays, replace) {
+            let invalid = if all_valid {
+                None
+            } else {
+                Ray::validate_batch(&mut rays, replace)
+            };
+            if let Some(b) = invalid {
                 invalid_rays += b.count;
                 match &mut bad {
                     Some(first) => first.count += b.count,
@@ -397,7 +415,7 @@ impl Engine {
 mod tests {
     use super::*;
     use crate::formats::binary::{read_hits, write_hits};
-    use crate::geometry::Triangle;
+    use crate::geometry::{RaySegment, Triangle};
     use std::sync::Arc;
 
     fn scene() -> Geometry {
@@ -512,7 +530,8 @@ mod tests {
     ) -> Result<(HitBody, TraceReport), JobError> {
         let (tx, rx) = std::sync::mpsc::channel();
         for piece in rays.chunks(pieces) {
-            tx.send(Arrival::Rays(piece.to_vec())).unwrap();
+            tx.send(Arrival::Rays(RaySegment::unchecked(piece.to_vec())))
+                .unwrap();
         }
         if end {
             tx.send(Arrival::End).unwrap();
@@ -595,7 +614,8 @@ mod tests {
         ));
         // Fewer rays than announced.
         let (tx, rx) = std::sync::mpsc::channel();
-        tx.send(Arrival::Rays(good[..100].to_vec())).unwrap();
+        tx.send(Arrival::Rays(RaySegment::unchecked(good[..100].to_vec())))
+            .unwrap();
         tx.send(Arrival::End).unwrap();
         assert!(matches!(
             engine.trace_stream(&g, &req, 300, rx, &engine.detached()),

@@ -374,7 +374,7 @@ async fn trace(
             intake.send(rays);
         }
     }
-    let rays = sink.finish().map_err(binary_error)?;
+    let rays = sink.finish_segment().map_err(binary_error)?;
     let (hits, report) = intake.finish(rays).await?;
     drop(reader);
     state
