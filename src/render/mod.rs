@@ -440,10 +440,38 @@ struct WaveOut<'a> {
 struct Scratch {
     /// The wave's camera rays, in groups of [`RAYS_AT_ONCE`].
     cameras: Vec<[Ray; RAYS_AT_ONCE]>,
-    paths: Vec<PathState>,
+    paths: Paths,
     steps: Vec<Step>,
     trace: TraceBufs,
     shadows: Shadows,
+}
+
+/// A wave's live paths as three lists in step: each path's state, the ray it follows and
+/// what that ray hit. The rays and hits are the very buffers the intersector reads and
+/// writes, so tracing every live path copies nothing in or out (with the rays inside the
+/// paths, gathering them and scattering the hits back cost a tenth of a path frame's
+/// shading), and the passes that read only hits or rays read 16 or 32 bytes a path.
+#[derive(Default)]
+struct Paths {
+    state: Vec<PathState>,
+    rays: Vec<Ray>,
+    hits: Vec<Hit>,
+}
+
+impl Paths {
+    /// Keeps the paths whose flag in `keep` is true, in order (a `Vec::retain` visits its
+    /// elements in order, once each, so the k-th visit reads the k-th flag). The hits are
+    /// left as they are: the next trace rewrites them all.
+    fn retain(&mut self, keep: impl Iterator<Item = bool> + Clone) {
+        let mut next = keep.clone();
+        self.state.retain(|_| next.next().unwrap_or(false));
+        let mut next = keep;
+        self.rays.retain(|_| next.next().unwrap_or(false));
+    }
+
+    fn is_empty(&self) -> bool {
+        self.state.is_empty()
+    }
 }
 
 /// One bounce's shadow rays, what each adds when unoccluded, and its pixel in the wave.
@@ -564,21 +592,28 @@ fn render_wave(
                 camera.rays(&x, &y, w, h)
             }),
     );
-    paths.clear();
-    paths.par_extend((start..end).into_par_iter().map(|p| {
-        let i = p - start;
-        let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-        PathState::new(i, cameras[i / RAYS_AT_ONCE][i % RAYS_AT_ONCE], rng)
-    }));
+    let camera_ray = |i: usize| cameras[i / RAYS_AT_ONCE][i % RAYS_AT_ONCE];
+    paths.rays.clear();
+    paths
+        .rays
+        .par_extend((0..end - start).into_par_iter().map(camera_ray));
+    paths.state.clear();
+    paths
+        .state
+        .par_extend((start..end).into_par_iter().map(|p| {
+            let i = p - start;
+            let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
+            PathState::new(i, &camera_ray(i), rng)
+        }));
     trace_closest(frame, paths, trace, stats);
-    for (c, p) in wave.covered.iter_mut().zip(paths.iter()) {
-        *c += p.hit.is_hit() as u32;
+    for (c, h) in wave.covered.iter_mut().zip(&paths.hits) {
+        *c += h.is_hit() as u32;
     }
     if let Some(primary) = wave.primary.as_deref_mut() {
-        primary.par_iter_mut().zip(&paths[..]).for_each(|(q, p)| {
-            let hit = &p.hit;
+        let lanes = paths.state.par_iter().zip(&paths.rays[..]);
+        primary.par_iter_mut().zip(lanes).zip(&paths.hits[..]).for_each(|((q, (p, ray)), hit)| {
             *q = if hit.is_hit() {
-                let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(p.ray.dir));
+                let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(ray.dir));
                 Primary {
                     depth: p.travelled + hit.t,
                     normal: sp.ns.to_array(),
@@ -593,8 +628,8 @@ fn render_wave(
     let out = &mut *wave.radiance;
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
-            out.par_iter_mut().zip(&paths[..]).for_each(|(o, p)| {
-                let (r, hit) = (&p.ray, &p.hit);
+            let lanes = paths.rays.par_iter().zip(&paths.hits[..]);
+            out.par_iter_mut().zip(lanes).for_each(|(o, (r, hit))| {
                 let c = if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
                     if options.integrator == Integrator::Primary {
@@ -613,8 +648,8 @@ fn render_wave(
             let dist = scene_diagonal / 8.0;
             let mut idx = Vec::new();
             let mut ao_rays = Vec::new();
-            for (i, p) in paths.iter_mut().enumerate() {
-                let (r, hit) = (&p.ray, &p.hit);
+            let lanes = paths.state.iter_mut().zip(&paths.rays).zip(&paths.hits);
+            for (i, ((p, r), hit)) in lanes.enumerate() {
                 if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
                     let d = cosine_hemisphere(nrm, p.rng.next_f32(), p.rng.next_f32());
@@ -639,13 +674,11 @@ fn render_wave(
     }
 }
 
-/// A live path: its pixel in the wave, the ray it last followed and what that hit, what
-/// it carries, its pixel's random stream, and what multiple importance sampling needs of
+/// A live path (its ray and hit are in [`Paths`]' lists beside it): its pixel in the wave,
+/// what it carries, its pixel's random stream, and what multiple importance sampling needs of
 /// the vertex it last scattered at.
 struct PathState {
     pixel: usize,
-    ray: Ray,
-    hit: Hit,
     throughput: Vec3,
     rng: Pcg32,
     /// Distance from the segment's start to `ray`'s origin: surfaces passed through since
@@ -663,11 +696,9 @@ struct PathState {
 }
 
 impl PathState {
-    fn new(pixel: usize, ray: Ray, rng: Pcg32) -> PathState {
+    fn new(pixel: usize, ray: &Ray, rng: Pcg32) -> PathState {
         PathState {
             pixel,
-            ray,
-            hit: Hit::MISS,
             throughput: Vec3::ONE,
             rng,
             travelled: 0.0,
@@ -698,57 +729,59 @@ fn beyond(triangles: &[Triangle], ray: &Ray, hit: &Hit) -> Ray {
 /// know nothing of materials; only the waves do.
 fn trace_closest(
     frame: Frame<'_>,
-    paths: &mut [PathState],
+    paths: &mut Paths,
     bufs: &mut TraceBufs,
     stats: &mut RenderStats,
 ) {
-    let TraceBufs {
-        rays, hits, idx, ..
-    } = bufs;
-    rays.clear();
-    rays.par_extend(paths.par_iter().map(|p| p.ray));
-    hits.clear();
-    hits.resize(rays.len(), Hit::MISS);
-    frame.trace(rays, hits, stats);
-    paths.par_iter_mut().zip(&hits[..]).for_each(|(p, h)| {
-        p.hit = *h;
-        p.pending = h.is_hit();
-    });
+    paths.hits.clear();
+    paths.hits.resize(paths.rays.len(), Hit::MISS);
+    frame.trace(&paths.rays, &mut paths.hits, stats);
     if !frame.surfaces.has_alpha() {
         return;
     }
+    let Paths { state, rays, hits } = paths;
+    state.par_iter_mut().zip(&hits[..]).for_each(|(p, h)| {
+        p.pending = h.is_hit();
+    });
+    let TraceBufs {
+        rays: batch,
+        hits: found,
+        idx,
+        ..
+    } = bufs;
     for _ in 0..MAX_LAYERS {
-        paths.par_iter_mut().filter(|p| p.pending).for_each(|p| {
-            let passes = match frame.surfaces.presence(&p.hit) {
+        let lanes = state.par_iter_mut().zip(&mut rays[..]).zip(&hits[..]);
+        lanes.filter(|((p, _), _)| p.pending).for_each(|((p, ray), hit)| {
+            let passes = match frame.surfaces.presence(hit) {
                 Presence::Opaque => false,
                 Presence::Cut => true,
                 Presence::Blend(alpha) => p.rng.next_f32() >= alpha,
             };
             if passes {
-                p.travelled += p.hit.t;
-                p.ray = beyond(frame.triangles, &p.ray, &p.hit);
+                p.travelled += hit.t;
+                *ray = beyond(frame.triangles, ray, hit);
             } else {
                 p.pending = false;
             }
         });
-        rays.clear();
+        batch.clear();
         idx.clear();
-        for (i, p) in paths.iter().enumerate().filter(|(_, p)| p.pending) {
-            rays.push(p.ray);
+        for (i, _) in state.iter().enumerate().filter(|(_, p)| p.pending) {
+            batch.push(rays[i]);
             idx.push(i);
         }
-        if rays.is_empty() {
+        if batch.is_empty() {
             return;
         }
-        hits.clear();
-        hits.resize(rays.len(), Hit::MISS);
-        frame.trace(rays, hits, stats);
-        for (&i, h) in idx.iter().zip(hits.iter()) {
-            paths[i].hit = *h;
-            paths[i].pending = h.is_hit();
+        found.clear();
+        found.resize(batch.len(), Hit::MISS);
+        frame.trace(batch, found, stats);
+        for (&i, h) in idx.iter().zip(found.iter()) {
+            hits[i] = *h;
+            state[i].pending = h.is_hit();
         }
     }
-    for p in paths.iter_mut() {
+    for p in state.iter_mut() {
         p.pending = false;
     }
 }
@@ -851,7 +884,7 @@ const _: () = assert!(
 /// light, a point on an emissive triangle or a sky direction).
 fn trace_paths(
     frame: Frame<'_>,
-    live: &mut Vec<PathState>,
+    live: &mut Paths,
     out: &mut [[f32; 3]],
     steps: &mut Vec<Step>,
     bufs: &mut TraceBufs,
@@ -864,15 +897,17 @@ fn trace_paths(
         // A vertex reached after `bounce` scatterings may scatter once more.
         let scatter = bounce < options.bounces;
         steps.clear();
+        let lanes = live.state.par_iter_mut().zip(&mut live.rays[..]);
         steps.par_extend(
-            live.par_iter_mut()
-                .map(|p| shade_vertex(frame, p, bounce, scatter, sky)),
+            lanes
+                .zip(&live.hits[..])
+                .map(|((p, ray), hit)| shade_vertex(frame, p, ray, hit, bounce, scatter, sky)),
         );
         shadows.rays.clear();
         shadows.gain.clear();
         shadows.pixel.clear();
         // Every path of a wave is a distinct pixel, so the order of these adds is fixed.
-        for (p, step) in live.iter().zip(steps.iter()) {
+        for (p, step) in live.state.iter().zip(steps.iter()) {
             if step.emitted != Vec3::ZERO {
                 add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
             }
@@ -883,9 +918,7 @@ fn trace_paths(
             }
         }
         // The ended paths drop out (the others became their continuations while shaded).
-        // `retain` visits the paths in order, so the k-th visit is the k-th step's.
-        let mut next = steps.iter().map(|step| step.continues);
-        live.retain(|_| next.next().unwrap_or(false));
+        live.retain(steps.iter().map(|step| step.continues));
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
         for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
             if gain.max_element() > 0.0 {
@@ -899,18 +932,21 @@ fn trace_paths(
     }
 }
 
-/// Shades the vertex path `p` reached after `bounce` scatterings.
+/// Shades the vertex path `p` reached after `bounce` scatterings: its `ray` found `hit`.
+/// A path that scatters on becomes its continuation in place (`p` and `ray`).
 fn shade_vertex(
     frame: Frame<'_>,
     p: &mut PathState,
+    ray: &mut Ray,
+    hit: &Hit,
     bounce: u32,
     scatter: bool,
     sky: Vec3,
 ) -> Step {
     let thr = p.throughput;
-    let dir = Vec3::from(p.ray.dir);
+    let dir = Vec3::from(ray.dir);
     let lights = frame.lights;
-    if !p.hit.is_hit() {
+    if !hit.is_hit() {
         // The sky, weighted against the chance that light sampling found the direction.
         let w = if p.prev_pdf > 0.0 {
             power_heuristic(p.prev_pdf, lights.sky_pdf(p.prev_ns, dir))
@@ -922,13 +958,13 @@ fn shade_vertex(
             ..Step::default()
         };
     }
-    let tri = &frame.triangles[p.hit.prim as usize];
-    let sp = frame.surfaces.at(tri, &p.hit, dir);
-    let pos = Vec3::from(p.ray.at(p.hit.t));
+    let tri = &frame.triangles[hit.prim as usize];
+    let sp = frame.surfaces.at(tri, hit, dir);
+    let pos = Vec3::from(ray.at(hit.t));
     let mut emitted = thr * sp.emission;
     if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
         let dist = (pos - p.prev_pos).length();
-        let light_pdf = lights.triangle_pdf(p.hit.prim, dist, sp.ng.dot(-dir).abs());
+        let light_pdf = lights.triangle_pdf(hit.prim, dist, sp.ng.dot(-dir).abs());
         emitted *= power_heuristic(p.prev_pdf, light_pdf);
     }
     let mut step = Step {
@@ -1032,14 +1068,13 @@ fn shade_vertex(
         // A direction under the geometric surface would leak through it.
         if survives && wi.dot(sp.ng) > 0.0 {
             // The path becomes its continuation in place (its pixel stays).
-            p.ray = Ray {
+            *ray = Ray {
                 org,
                 tmin: 0.0,
                 dir: wi.to_array(),
                 tmax: f32::INFINITY,
             };
             p.throughput = throughput;
-            p.hit = Hit::MISS;
             p.travelled = 0.0;
             p.prev_pos = pos;
             p.prev_ns = sp.ns;
