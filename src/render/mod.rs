@@ -606,10 +606,9 @@ fn render_wave(
             PathState::new(i, &camera_ray(i), rng)
         }));
     trace_closest(frame, paths, trace, stats);
-    wave.covered
-        .par_iter_mut()
-        .zip(&paths.hits[..])
-        .for_each(|(c, h)| *c += h.is_hit() as u32);
+    for (c, h) in wave.covered.iter_mut().zip(&paths.hits) {
+        *c += h.is_hit() as u32;
+    }
     if let Some(primary) = wave.primary.as_deref_mut() {
         let lanes = paths.state.par_iter().zip(&paths.rays[..]);
         primary.par_iter_mut().zip(lanes).zip(&paths.hits[..]).for_each(|((q, (p, ray)), hit)| {
@@ -904,141 +903,33 @@ fn trace_paths(
                 .zip(&live.hits[..])
                 .map(|((p, ray), hit)| shade_vertex(frame, p, ray, hit, bounce, scatter, sky)),
         );
-        gather(&live.state, steps, out, shadows);
+        shadows.rays.clear();
+        shadows.gain.clear();
+        shadows.pixel.clear();
+        // Every path of a wave is a distinct pixel, so the order of these adds is fixed.
+        for (p, step) in live.state.iter().zip(steps.iter()) {
+            if step.emitted != Vec3::ZERO {
+                add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
+            }
+            if let Some((ray, gain)) = step.shadow {
+                shadows.rays.push(ray);
+                shadows.gain.push(gain);
+                shadows.pixel.push(p.pixel);
+            }
+        }
         // The ended paths drop out (the others became their continuations while shaded).
         live.retain(steps.iter().map(|step| step.continues));
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
-        add_unoccluded(shadows, out);
+        for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
+            if gain.max_element() > 0.0 {
+                add(&mut out[pixel], gain.to_array(), 1.0);
+            }
+        }
         if live.is_empty() {
             break;
         }
         trace_closest(frame, live, bufs, stats);
     }
-}
-
-/// Paths per piece of the parallel gathering ([`gather`], [`add_unoccluded`]): enough that
-/// a piece's bookkeeping is noise, few enough that two threads share the work evenly.
-const GATHER_PIECE: usize = 1 << 13;
-
-/// Whether the gathering runs in pieces on the pool: not on one thread, where counting the
-/// shadow rays first is only extra work, nor for a few paths.
-fn gather_in_parallel(paths: usize) -> bool {
-    rayon::current_num_threads() > 1 && paths > 2 * GATHER_PIECE
-}
-
-/// Adds each shaded vertex's emitted light to its pixel of `out` and lists its shadow ray,
-/// in path order. Every path of a wave is a distinct pixel, in increasing order, so every
-/// pixel's sum sees the same adds in the same order however the work is split: in
-/// parallel, each piece of [`GATHER_PIECE`] paths owns the pixels from its first path's
-/// up to the next piece's, and writes its shadow rays where the counts of the pieces
-/// before it end.
-fn gather(state: &[PathState], steps: &[Step], out: &mut [[f32; 3]], shadows: &mut Shadows) {
-    let Shadows { rays, gain, pixel } = shadows;
-    rays.clear();
-    gain.clear();
-    pixel.clear();
-    if !gather_in_parallel(state.len()) {
-        for (p, step) in state.iter().zip(steps) {
-            if step.emitted != Vec3::ZERO {
-                add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
-            }
-            if let Some((ray, g)) = step.shadow {
-                rays.push(ray);
-                gain.push(g);
-                pixel.push(p.pixel);
-            }
-        }
-        return;
-    }
-    debug_assert!(state.windows(2).all(|w| w[0].pixel < w[1].pixel));
-    let counts: Vec<usize> = steps
-        .par_chunks(GATHER_PIECE)
-        .map(|c| c.iter().filter(|s| s.shadow.is_some()).count())
-        .collect();
-    let total = counts.iter().sum();
-    rays.resize(total, Ray::EMPTY);
-    gain.resize(total, Vec3::ZERO);
-    pixel.resize(total, 0);
-    let outs = pixel_slices(out, state.len(), |i| state[i].pixel);
-    let lists = split_lengths(rays, &counts)
-        .into_iter()
-        .zip(split_lengths(gain, &counts))
-        .zip(split_lengths(pixel, &counts));
-    let pieces: Vec<_> = outs.into_iter().zip(lists).collect();
-    pieces
-        .into_par_iter()
-        .zip(state.par_chunks(GATHER_PIECE))
-        .zip(steps.par_chunks(GATHER_PIECE))
-        .for_each(|((((base, out), ((rays, gain), pixel)), state), steps)| {
-            let mut k = 0;
-            for (p, step) in state.iter().zip(steps) {
-                if step.emitted != Vec3::ZERO {
-                    add(&mut out[p.pixel - base], step.emitted.to_array(), 1.0);
-                }
-                if let Some((ray, g)) = step.shadow {
-                    rays[k] = ray;
-                    gain[k] = g;
-                    pixel[k] = p.pixel;
-                    k += 1;
-                }
-            }
-        });
-}
-
-/// Adds what each shadow ray carries to its pixel, where it was not blocked (its gain
-/// left above 0); in pieces on the pool as [`gather`], the shadow rays' pixels
-/// increasing as the paths' do.
-fn add_unoccluded(shadows: &Shadows, out: &mut [[f32; 3]]) {
-    let add_piece = |base: usize, out: &mut [[f32; 3]], pixel: &[usize], gain: &[Vec3]| {
-        for (&p, g) in pixel.iter().zip(gain) {
-            if g.max_element() > 0.0 {
-                add(&mut out[p - base], g.to_array(), 1.0);
-            }
-        }
-    };
-    let n = shadows.pixel.len();
-    if !gather_in_parallel(n) {
-        add_piece(0, out, &shadows.pixel, &shadows.gain);
-        return;
-    }
-    pixel_slices(out, n, |i| shadows.pixel[i])
-        .into_par_iter()
-        .zip(shadows.pixel.par_chunks(GATHER_PIECE))
-        .zip(shadows.gain.par_chunks(GATHER_PIECE))
-        .for_each(|(((base, out), pixel), gain)| add_piece(base, out, pixel, gain));
-}
-
-/// `out` split for `n` items in pieces of [`GATHER_PIECE`] whose pixels, `pixel(i)`,
-/// increase: piece k gets the pixels from its first item's (0 for the first piece) up to
-/// the next piece's first item's (the end for the last), with the first pixel it holds.
-fn pixel_slices<'a>(
-    out: &'a mut [[f32; 3]],
-    n: usize,
-    pixel: impl Fn(usize) -> usize,
-) -> Vec<(usize, &'a mut [[f32; 3]])> {
-    let mut pieces = Vec::with_capacity(n.div_ceil(GATHER_PIECE));
-    let (mut rest, mut base) = (out, 0);
-    for next in (GATHER_PIECE..n).step_by(GATHER_PIECE) {
-        let end = pixel(next);
-        let (piece, tail) = rest.split_at_mut(end - base);
-        pieces.push((base, piece));
-        (rest, base) = (tail, end);
-    }
-    pieces.push((base, rest));
-    pieces
-}
-
-/// `list` cut into consecutive slices of the given lengths (which sum to its length).
-fn split_lengths<'a, T>(list: &'a mut [T], lengths: &[usize]) -> Vec<&'a mut [T]> {
-    let mut rest = list;
-    lengths
-        .iter()
-        .map(|&len| {
-            let (piece, tail) = std::mem::take(&mut rest).split_at_mut(len);
-            rest = tail;
-            piece
-        })
-        .collect()
 }
 
 /// Shades the vertex path `p` reached after `bounce` scatterings: its `ray` found `hit`.
