@@ -438,8 +438,6 @@ struct WaveOut<'a> {
 /// `perf`), so they live here across the frame and only grow.
 #[derive(Default)]
 struct Scratch {
-    /// The wave's camera rays, in groups of [`RAYS_AT_ONCE`].
-    cameras: Vec<[Ray; RAYS_AT_ONCE]>,
     paths: Paths,
     steps: Vec<Step>,
     trace: TraceBufs,
@@ -568,42 +566,38 @@ fn render_wave(
     let h = options.height;
     let spp = options.spp.max(1);
     let Scratch {
-        cameras,
         paths,
         steps,
         trace,
         shadows,
     } = scratch;
-    // The camera rays first, a group of pixels at a time (the last group padded with its
-    // last pixel), then the paths.
-    cameras.clear();
-    cameras.par_extend(
-        (start..end)
-            .into_par_iter()
-            .step_by(RAYS_AT_ONCE)
-            .map(|first| {
-                let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
-                for i in 0..RAYS_AT_ONCE {
-                    let p = (first + i).min(end - 1);
-                    let (jx, jy) = pixel_sample(options.seed, p, s, spp);
-                    x[i] = (p % w as usize) as f64 + jx;
-                    y[i] = (p / w as usize) as f64 + jy;
-                }
-                camera.rays(&x, &y, w, h)
-            }),
-    );
-    let camera_ray = |i: usize| cameras[i / RAYS_AT_ONCE][i % RAYS_AT_ONCE];
+    // The camera rays first, straight into the paths' ray list, a group of pixels at a time
+    // (the last group padded with its last pixel), then the paths.
     paths.rays.clear();
+    paths.rays.resize(end - start, Ray::EMPTY);
     paths
         .rays
-        .par_extend((0..end - start).into_par_iter().map(camera_ray));
+        .par_chunks_mut(RAYS_AT_ONCE)
+        .enumerate()
+        .for_each(|(k, group)| {
+            let first = start + k * RAYS_AT_ONCE;
+            let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
+            for i in 0..RAYS_AT_ONCE {
+                let p = (first + i).min(end - 1);
+                let (jx, jy) = pixel_sample(options.seed, p, s, spp);
+                x[i] = (p % w as usize) as f64 + jx;
+                y[i] = (p / w as usize) as f64 + jy;
+            }
+            let rays = camera.rays(&x, &y, w, h);
+            group.copy_from_slice(&rays[..group.len()]);
+        });
     paths.state.clear();
     paths
         .state
-        .par_extend((start..end).into_par_iter().map(|p| {
-            let i = p - start;
+        .par_extend(paths.rays.par_iter().enumerate().map(|(i, ray)| {
+            let p = start + i;
             let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-            PathState::new(i, &camera_ray(i), rng)
+            PathState::new(i, ray, rng)
         }));
     trace_closest(frame, paths, trace, stats);
     for (c, h) in wave.covered.iter_mut().zip(&paths.hits) {
