@@ -457,14 +457,20 @@ struct Paths {
 }
 
 impl Paths {
-    /// Keeps the paths whose flag in `keep` is true, in order (a `Vec::retain` visits its
-    /// elements in order, once each, so the k-th visit reads the k-th flag). The hits are
-    /// left as they are: the next trace rewrites them all.
-    fn retain(&mut self, keep: impl Iterator<Item = bool> + Clone) {
-        let mut next = keep.clone();
-        self.state.retain(|_| next.next().unwrap_or(false));
-        let mut next = keep;
-        self.rays.retain(|_| next.next().unwrap_or(false));
+    /// Moves path `from` to place `to` (`to <= from`), over a path that ended: the
+    /// compaction of a wave's live paths, done in the same pass as the gathering. The hits
+    /// stay where they are: the next trace rewrites them all.
+    fn move_down(&mut self, from: usize, to: usize) {
+        if from != to {
+            self.state.swap(to, from);
+            self.rays.swap(to, from);
+        }
+    }
+
+    /// Keeps the first `n` paths.
+    fn truncate(&mut self, n: usize) {
+        self.state.truncate(n);
+        self.rays.truncate(n);
     }
 
     fn is_empty(&self) -> bool {
@@ -600,9 +606,10 @@ fn render_wave(
             PathState::new(i, ray, rng)
         }));
     trace_closest(frame, paths, trace, stats);
-    for (c, h) in wave.covered.iter_mut().zip(&paths.hits) {
-        *c += h.is_hit() as u32;
-    }
+    wave.covered
+        .par_iter_mut()
+        .zip(&paths.hits[..])
+        .for_each(|(c, h)| *c += h.is_hit() as u32);
     if let Some(primary) = wave.primary.as_deref_mut() {
         let lanes = paths.state.par_iter().zip(&paths.rays[..]);
         primary.par_iter_mut().zip(lanes).zip(&paths.hits[..]).for_each(|((q, (p, ray)), hit)| {
@@ -900,19 +907,27 @@ fn trace_paths(
         shadows.rays.clear();
         shadows.gain.clear();
         shadows.pixel.clear();
-        // Every path of a wave is a distinct pixel, so the order of these adds is fixed.
-        for (p, step) in live.state.iter().zip(steps.iter()) {
+        // One pass over the shaded vertices, in path order: emitted light to the pixels
+        // (every path of a wave is a distinct pixel, so the order of these adds is fixed),
+        // shadow rays to their list, and the paths that go on (they became their
+        // continuations while shaded) moved down over the ended ones.
+        let mut kept = 0;
+        for (i, step) in steps.iter().enumerate() {
+            let pixel = live.state[i].pixel;
             if step.emitted != Vec3::ZERO {
-                add(&mut out[p.pixel], step.emitted.to_array(), 1.0);
+                add(&mut out[pixel], step.emitted.to_array(), 1.0);
             }
             if let Some((ray, gain)) = step.shadow {
                 shadows.rays.push(ray);
                 shadows.gain.push(gain);
-                shadows.pixel.push(p.pixel);
+                shadows.pixel.push(pixel);
+            }
+            if step.continues {
+                live.move_down(i, kept);
+                kept += 1;
             }
         }
-        // The ended paths drop out (the others became their continuations while shaded).
-        live.retain(steps.iter().map(|step| step.continues));
+        live.truncate(kept);
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
         for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
             if gain.max_element() > 0.0 {
