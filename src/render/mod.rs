@@ -532,22 +532,10 @@ const MAX_LAYERS: u32 = 64;
 /// pixel's samples evenly (stratified in x, a (0, m, 2)-net when `spp` is a power of 2).
 /// It depends only on the seed, pixel and sample, never on how waves split the work.
 pub fn pixel_sample(seed: u64, p: usize, s: u32, spp: u32) -> (f64, f64) {
-    shifted(seed, p, hammersley(s, spp))
-}
-
-/// Point `s` of the `spp`-point Hammersley set: the same for every pixel of a wave.
-#[inline]
-fn hammersley(s: u32, spp: u32) -> (f64, f64) {
-    let x = s as f64 / spp.max(1) as f64;
-    let y = s.reverse_bits() as f64 * (1.0 / 4_294_967_296.0);
-    (x, y)
-}
-
-/// `point` shifted by pixel `p`'s random offset ([`pixel_sample`]).
-#[inline]
-fn shifted(seed: u64, p: usize, (x, y): (f64, f64)) -> (f64, f64) {
     let mut shift = Pcg32::new(seed ^ SHIFT_KEY, p as u64);
     let (dx, dy) = (shift.next_f32() as f64, shift.next_f32() as f64);
+    let x = s as f64 / spp.max(1) as f64;
+    let y = s.reverse_bits() as f64 * (1.0 / 4_294_967_296.0);
     (wrap_unit(x + dx), wrap_unit(y + dy))
 }
 
@@ -590,10 +578,7 @@ fn render_wave(
         shadows,
     } = scratch;
     // The camera rays first, straight into the paths' ray list, a group of pixels at a time
-    // (the last group padded with its last pixel), then the paths. The sample's point in
-    // the pixel is the wave's; a group's pixel rows and columns step from its first one's.
-    let point = hammersley(s, spp);
-    let w_px = w as usize;
+    // (the last group padded with its last pixel), then the paths.
     paths.rays.clear();
     paths.rays.resize(end - start, Ray::EMPTY);
     paths
@@ -603,19 +588,11 @@ fn render_wave(
         .for_each(|(k, group)| {
             let first = start + k * RAYS_AT_ONCE;
             let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
-            let (mut column, mut row) = (first % w_px, first / w_px);
             for i in 0..RAYS_AT_ONCE {
                 let p = (first + i).min(end - 1);
-                if p != first + i {
-                    (column, row) = (p % w_px, p / w_px);
-                }
-                let (jx, jy) = shifted(options.seed, p, point);
-                x[i] = column as f64 + jx;
-                y[i] = row as f64 + jy;
-                column += 1;
-                if column == w_px {
-                    (column, row) = (0, row + 1);
-                }
+                let (jx, jy) = pixel_sample(options.seed, p, s, spp);
+                x[i] = (p % w as usize) as f64 + jx;
+                y[i] = (p / w as usize) as f64 + jy;
             }
             let rays = camera.rays(&x, &y, w, h);
             group.copy_from_slice(&rays[..group.len()]);
