@@ -244,10 +244,12 @@ const WAVE_PIXELS: usize = 1 << 18;
 
 /// Pixels per wave for the per-ray cores. A wave's buffers (paths, rays, hits, shading
 /// steps: 180–350 bytes a pixel) are written fresh the first time, and every new page is
-/// a fault that serialises on the process's memory map; waves a quarter of DACRT's size
-/// touch a quarter of the memory and reuse it. Path renders of 640×480 took 0.80–0.95×
-/// the time with them, the trace itself 0.95–1.18× (BENCHMARKS §19).
-const BVH_WAVE_PIXELS: usize = 1 << 16;
+/// a fault that serialises on the process's memory map; waves an eighth of DACRT's size
+/// touch an eighth of the memory and reuse it, and its passes stay in cache. Path renders
+/// of 640×480 took 0.80–0.95× the time with a quarter (2^16), the trace itself 0.95–1.18×;
+/// an eighth, once the rays and hits lived beside the paths, took 0.85–1.00× the shading
+/// time of a quarter, the trace unchanged (BENCHMARKS §19).
+const BVH_WAVE_PIXELS: usize = 1 << 15;
 
 const BACKGROUND: [f32; 3] = [0.05, 0.06, 0.08];
 
