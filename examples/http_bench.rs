@@ -204,7 +204,9 @@ impl Server {
         let split = loop {
             let n = s.read(&mut buf).map_err(fail)?;
             if n == 0 {
-                return Err(format!("{method} {path}: the connection closed before the head"));
+                return Err(format!(
+                    "{method} {path}: the connection closed before the head"
+                ));
             }
             first.get_or_insert_with(|| t0.elapsed().as_secs_f64());
             raw.extend_from_slice(&buf[..n]);

@@ -693,7 +693,11 @@ mod tests {
                 for c in bytes.chunks(chunk) {
                     sink.push(c).unwrap();
                     for seg in sink.take_ready() {
-                        assert_eq!(seg.rays.len(), segment, "only whole segments before the end");
+                        assert_eq!(
+                            seg.rays.len(),
+                            segment,
+                            "only whole segments before the end"
+                        );
                         assert!(seg.all_valid);
                         got.extend(seg.rays);
                     }

@@ -614,19 +614,23 @@ fn render_wave(
         .for_each(|(c, h)| *c += h.is_hit() as u32);
     if let Some(primary) = wave.primary.as_deref_mut() {
         let lanes = paths.state.par_iter().zip(&paths.rays[..]);
-        primary.par_iter_mut().zip(lanes).zip(&paths.hits[..]).for_each(|((q, (p, ray)), hit)| {
-            *q = if hit.is_hit() {
-                let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(ray.dir));
-                Primary {
-                    depth: p.travelled + hit.t,
-                    normal: sp.ns.to_array(),
-                    albedo: sp.bsdf.base.to_array(),
-                    prim: hit.prim,
-                }
-            } else {
-                Primary::MISS
-            };
-        });
+        primary
+            .par_iter_mut()
+            .zip(lanes)
+            .zip(&paths.hits[..])
+            .for_each(|((q, (p, ray)), hit)| {
+                *q = if hit.is_hit() {
+                    let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(ray.dir));
+                    Primary {
+                        depth: p.travelled + hit.t,
+                        normal: sp.ns.to_array(),
+                        albedo: sp.bsdf.base.to_array(),
+                        prim: hit.prim,
+                    }
+                } else {
+                    Primary::MISS
+                };
+            });
     }
     let out = &mut *wave.radiance;
     match options.integrator {
@@ -754,19 +758,21 @@ fn trace_closest(
     } = bufs;
     for _ in 0..MAX_LAYERS {
         let lanes = state.par_iter_mut().zip(&mut rays[..]).zip(&hits[..]);
-        lanes.filter(|((p, _), _)| p.pending).for_each(|((p, ray), hit)| {
-            let passes = match frame.surfaces.presence(hit) {
-                Presence::Opaque => false,
-                Presence::Cut => true,
-                Presence::Blend(alpha) => p.rng.next_f32() >= alpha,
-            };
-            if passes {
-                p.travelled += hit.t;
-                *ray = beyond(frame.triangles, ray, hit);
-            } else {
-                p.pending = false;
-            }
-        });
+        lanes
+            .filter(|((p, _), _)| p.pending)
+            .for_each(|((p, ray), hit)| {
+                let passes = match frame.surfaces.presence(hit) {
+                    Presence::Opaque => false,
+                    Presence::Cut => true,
+                    Presence::Blend(alpha) => p.rng.next_f32() >= alpha,
+                };
+                if passes {
+                    p.travelled += hit.t;
+                    *ray = beyond(frame.triangles, ray, hit);
+                } else {
+                    p.pending = false;
+                }
+            });
         batch.clear();
         idx.clear();
         for (i, _) in state.iter().enumerate().filter(|(_, p)| p.pending) {
