@@ -242,11 +242,10 @@ impl Server {
             }
         }
         let done = t0.elapsed().as_secs_f64();
-        let raw = body;
         Ok(Timed {
             status,
             headers,
-            body: raw,
+            body,
             sent,
             first: first.unwrap_or(done),
             done,

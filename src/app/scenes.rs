@@ -606,18 +606,11 @@ impl TraceIntake {
                 engine,
                 ticket,
             } => {
-                let RaySegment {
-                    mut rays,
-                    all_valid,
-                } = rays;
+                let mut rays = rays;
                 on_trace_thread(move || {
-                    let invalid = if all_valid {
-                        0
-                    } else {
-                        trace::validate(&mut rays, request.invalid)?
-                    };
+                    let invalid = trace::validate_read(&mut rays, request.invalid)?;
                     let control = engine.control(Default::default(), None, ticket);
-                    engine.trace(&geometry, &rays, &request, invalid, &control)
+                    engine.trace(&geometry, &rays.rays, &request, invalid, &control)
                 })?
             }
         };

@@ -66,6 +66,15 @@ impl RaySegment {
             all_valid: false,
         }
     }
+
+    /// [`Ray::validate_batch`] of the rays, which a segment its reader vouched for skips.
+    pub fn validate(&mut self, replace_invalid: bool) -> Option<InvalidRays> {
+        if self.all_valid {
+            None
+        } else {
+            Ray::validate_batch(&mut self.rays, replace_invalid)
+        }
+    }
 }
 
 /// Summary of the invalid rays in a batch: enough for the contract's error message.

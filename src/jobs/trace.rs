@@ -13,7 +13,7 @@ use super::{seconds_since, Control, Engine, Geometry, InvalidPolicy, JobError};
 use crate::accel::{AccelKind, BuildQuality, Precision, Query};
 use crate::formats::binary::{hit1_header, HEADER_BYTES};
 use crate::formats::HitFormat;
-use crate::geometry::{Hit, Ray};
+use crate::geometry::{Hit, InvalidRays, Ray, RaySegment};
 
 /// What to trace and how (the options of `rayd trace` and of the trace route's query
 /// string; the defaults are the contract's).
@@ -98,10 +98,23 @@ impl HitBody {
 /// ray and the count; with `miss`, turns each bad ray into an empty interval and returns how
 /// many there were.
 pub fn validate(rays: &mut [Ray], policy: InvalidPolicy) -> Result<usize, JobError> {
-    let replace = policy == InvalidPolicy::Miss;
-    match Ray::validate_batch(rays, replace) {
+    settle(
+        Ray::validate_batch(rays, policy == InvalidPolicy::Miss),
+        policy,
+    )
+}
+
+/// [`validate`] of rays as their reader handed them on (a segment it vouched for is not
+/// read again).
+pub fn validate_read(rays: &mut RaySegment, policy: InvalidPolicy) -> Result<usize, JobError> {
+    settle(rays.validate(policy == InvalidPolicy::Miss), policy)
+}
+
+/// What `policy` makes of the bad rays a check found.
+fn settle(bad: Option<InvalidRays>, policy: InvalidPolicy) -> Result<usize, JobError> {
+    match bad {
         None => Ok(0),
-        Some(bad) if replace => Ok(bad.count),
+        Some(bad) if policy == InvalidPolicy::Miss => Ok(bad.count),
         Some(bad) => Err(JobError::InvalidRays(bad)),
     }
 }
@@ -233,7 +246,7 @@ impl BodyWriter {
 /// of a body that arrived whole.
 pub enum Arrival {
     /// The next rays of the batch (checked or not as they were read).
-    Rays(crate::geometry::RaySegment),
+    Rays(RaySegment),
     /// Every ray has arrived and the body was well formed.
     End,
 }
@@ -273,33 +286,30 @@ impl Engine {
         let accel = prepared.accel.as_ref();
         let mut out = BodyWriter::new(request.hit, count);
         let replace = request.invalid == InvalidPolicy::Miss;
-        let mut bad: Option<crate::geometry::InvalidRays> = None;
+        let mut bad: Option<InvalidRays> = None;
         let mut invalid_rays = 0;
         let mut received = 0usize;
         let mut trace_seconds = 0.0;
         loop {
-            let (mut rays, all_valid) = match arrivals.recv() {
-                Ok(Arrival::Rays(seg)) => (seg.rays, seg.all_valid),
+            let mut segment = match arrivals.recv() {
+                Ok(Arrival::Rays(segment)) => segment,
                 Ok(Arrival::End) => break,
                 Err(_) => return Err(JobError::Cancelled),
             };
-            if received + rays.len() > count {
+            if received + segment.rays.len() > count {
                 return Err(JobError::Invalid {
                     field: "rays",
                     detail: format!("more than the {count} rays announced"),
                 });
             }
-            let invalid = if all_valid {
-                None
-            } else {
-                Ray::validate_batch(&mut rays, replace)
-            };
-            if let Some(b) = invalid {
+            let bad_here = segment.validate(replace);
+            let rays = segment.rays;
+            if let Some(b) = bad_here {
                 invalid_rays += b.count;
                 match &mut bad {
                     Some(first) => first.count += b.count,
                     None => {
-                        bad = Some(crate::geometry::InvalidRays {
+                        bad = Some(InvalidRays {
                             first_index: received + b.first_index,
                             ..b
                         })
@@ -415,7 +425,7 @@ impl Engine {
 mod tests {
     use super::*;
     use crate::formats::binary::{read_hits, write_hits};
-    use crate::geometry::{RaySegment, Triangle};
+    use crate::geometry::Triangle;
     use std::sync::Arc;
 
     fn scene() -> Geometry {

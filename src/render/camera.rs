@@ -288,13 +288,8 @@ mod tests {
             .unwrap(),
             ViewCamera::look_at([1e4, 2e-3, -7.0], [0.0; 3], [0.0, 0.0, 1.0], 120.0, 0.5).unwrap(),
         ];
-        let mut seed = 12345u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::render::rng::Pcg32::new(12345, 0);
+        let mut next = || rng.next_f32() as f64;
         for cam in &cams {
             for _ in 0..200 {
                 let x: [f64; RAYS_AT_ONCE] = std::array::from_fn(|_| next() * 641.0);

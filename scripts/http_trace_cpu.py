@@ -1,0 +1,134 @@
+#!/usr/bin/env python3
+"""Where a warm HTTP trace's time and CPU go (BENCHMARKS §12.8).
+
+Starts `BIN serve --threads T` on a free loopback port with a temporary data directory,
+uploads SCENE, sends RAYS (a RAY1 file, e.g. from `rayd bench --dump`) as warm traces with
+a plain socket client (one `sendall` of the body, the answer read into a buffer of its
+`Content-Length`), and prints the median upload / wait / response / total times and the
+server's `Server-Timing` trace. With `--perf`, the timed requests run under `perf record`
+of the server and the script also prints the server's core-ms per request by thread name
+(the rayon pool, the tokio HTTP threads, the trace's own thread), from the sample counts.
+
+    scripts/http_trace_cpu.py SCENE RAYS [--bin target/release/rayd] [--threads 2]
+        [--requests 20] [--accel mbvh8] [--perf]
+"""
+import argparse
+import collections
+import json
+import os
+import socket
+import statistics
+import subprocess
+import tempfile
+import time
+
+FREQ = 2999
+
+
+def request(port, method, path, body, ctype):
+    """One request on a new connection: (answer body, header dict, phase seconds)."""
+    t0 = time.perf_counter()
+    s = socket.create_connection(("127.0.0.1", port))
+    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    s.sendall(f"{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
+              f"Content-Length: {len(body)}\r\nContent-Type: {ctype}\r\n\r\n".encode())
+    s.sendall(body)
+    t1 = time.perf_counter()
+    head = bytearray()
+    while b"\r\n\r\n" not in head:
+        chunk = s.recv(1 << 16)
+        if not chunk:
+            raise RuntimeError(f"{path}: the connection closed before the head")
+        head += chunk
+    t2 = time.perf_counter()
+    k = head.index(b"\r\n\r\n")
+    lines = bytes(head[:k]).decode().split("\r\n")
+    headers = {l.split(":", 1)[0].strip().lower(): l.split(":", 1)[1].strip()
+               for l in lines[1:]}
+    length = int(headers["content-length"])
+    out = bytearray(length)
+    view = memoryview(out)
+    have = len(head) - k - 4
+    view[:have] = head[k + 4:]
+    while have < length:
+        n = s.recv_into(view[have:])
+        if n == 0:
+            break
+        have += n
+    t3 = time.perf_counter()
+    s.close()
+    if not lines[0].split()[1].startswith("2"):
+        raise RuntimeError(f"{path}: {lines[0]} {bytes(out[:300])!r}")
+    return out, headers, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene")
+    ap.add_argument("rays")
+    ap.add_argument("--bin", default="target/release/rayd")
+    ap.add_argument("--threads", default="2")
+    ap.add_argument("--requests", type=int, default=20)
+    ap.add_argument("--accel", default="mbvh8")
+    ap.add_argument("--perf", action="store_true")
+    args = ap.parse_args()
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    body = open(args.rays, "rb").read()
+    with tempfile.TemporaryDirectory() as data:
+        server = subprocess.Popen(
+            [args.bin, "serve", "--threads", args.threads, "--data-dir", data,
+             "--addr", f"127.0.0.1:{port}"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            for _ in range(100):
+                try:
+                    socket.create_connection(("127.0.0.1", port)).close()
+                    break
+                except OSError:
+                    time.sleep(0.05)
+            scene, _, _ = request(port, "POST", "/v1/scenes", open(args.scene, "rb").read(),
+                                  "model/gltf-binary")
+            path = f"/v1/scenes/{json.loads(bytes(scene))['id']}/trace?accel={args.accel}"
+            for _ in range(3):  # warm: the structure is built and cached
+                request(port, "POST", path, body, "application/octet-stream")
+            perf_data = os.path.join(data, "perf.data")
+            perf = None
+            if args.perf:
+                perf = subprocess.Popen(
+                    ["perf", "record", "-q", "-F", str(FREQ), "-p", str(server.pid),
+                     "-o", perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                time.sleep(0.5)
+            phases, traces = [], []
+            for _ in range(args.requests):
+                _, h, t = request(port, "POST", path, body, "application/octet-stream")
+                phases.append(t)
+                traces.append(float(h["server-timing"].split("trace;dur=")[1]))
+            if perf:
+                perf.send_signal(2)
+                perf.wait()
+        finally:
+            server.kill()
+            server.wait()
+        med = [statistics.median(c) * 1e3 for c in zip(*phases)]
+        print(f"{args.bin}: {args.requests} requests, ms (median): upload {med[0]:.1f}, "
+              f"wait {med[1]:.1f}, response {med[2]:.1f}, total {med[3]:.1f}; "
+              f"Server-Timing trace {statistics.median(traces):.1f}")
+        if perf:
+            report = subprocess.run(
+                ["perf", "report", "-i", perf_data, "-n", "--no-children", "--sort", "comm",
+                 "--stdio", "-g", "none"], capture_output=True, text=True).stdout
+            by_name = collections.Counter()
+            for line in report.splitlines():
+                parts = line.split()
+                if len(parts) == 3 and parts[0].endswith("%") and not line.startswith("#"):
+                    by_name[parts[2]] += int(parts[1])
+            per = {k: v / FREQ * 1e3 / args.requests for k, v in by_name.items()}
+            print("server core-ms per request: " + ", ".join(
+                f"{k} {v:.2f}" for k, v in sorted(per.items(), key=lambda kv: -kv[1])
+                if v >= 0.05) + f"; total {sum(per.values()):.1f}")
+
+
+if __name__ == "__main__":
+    main()
