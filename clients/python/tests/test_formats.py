@@ -60,6 +60,29 @@ def test_segmented_encoding_sends_the_same_bytes(n, segment):
             assert b"".join(bytes(p) for p in parts) == whole
 
 
+@pytest.mark.parametrize("n", [0, 1, 7, 1000])
+def test_every_input_layout_encodes_the_same_bytes(n):
+    # Packed float32 rows are copied as 12-byte values; every other layout (float64,
+    # transposed, strided, one broadcast vector) goes field by field. Both must agree.
+    rng = np.random.default_rng(7 + n)
+    o64, d64 = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    o32, d32 = o64.astype(np.float32), d64.astype(np.float32)
+    want = bytes(formats.encode_rays(o64, d64, 0.5, 7.0))
+    layouts = [
+        (o32, d32),
+        (np.asfortranarray(o32), d32),
+        (o32, np.ascontiguousarray(d32.T).T),
+        (np.repeat(o32, 2, axis=0)[::2], np.repeat(d32, 2, axis=0)[::2]),
+        (np.pad(o32, ((0, 0), (0, 1)))[:, :3], d32),
+    ]
+    for o, d in layouts:
+        assert bytes(formats.encode_rays(o, d, 0.5, 7.0)) == want
+        assert b"".join(bytes(p) for p in formats.RaySegments(o, d, 0.5, 7.0, segment=3)) == want
+    if n:
+        one = bytes(formats.encode_rays(o32[0], d32, 0.5, 7.0))
+        assert one == bytes(formats.encode_rays(np.broadcast_to(o64[0], (n, 3)), d64, 0.5, 7.0))
+
+
 def test_segmented_encoding_checks_shapes_before_anything_is_sent():
     with pytest.raises(ValueError, match="ray counts disagree"):
         formats.RaySegments(np.zeros((3, 3)), np.zeros((4, 3)))
