@@ -62,8 +62,9 @@ def test_segmented_encoding_sends_the_same_bytes(n, segment):
 
 @pytest.mark.parametrize("n", [0, 1, 7, 1000])
 def test_every_input_layout_encodes_the_same_bytes(n):
-    # Packed float32 rows are copied as 12-byte values; every other layout (float64,
-    # transposed, strided, one broadcast vector) goes field by field. Both must agree.
+    # Rows of three adjacent float32 (packed, or the halves of an (N, 6) array) are copied
+    # as 12-byte values; every other layout (float64, big-endian, transposed, one broadcast
+    # vector) goes field by field. Both must agree.
     rng = np.random.default_rng(7 + n)
     o64, d64 = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
     o32, d32 = o64.astype(np.float32), d64.astype(np.float32)
@@ -74,6 +75,8 @@ def test_every_input_layout_encodes_the_same_bytes(n):
         (o32, np.ascontiguousarray(d32.T).T),
         (np.repeat(o32, 2, axis=0)[::2], np.repeat(d32, 2, axis=0)[::2]),
         (np.pad(o32, ((0, 0), (0, 1)))[:, :3], d32),
+        (np.concatenate([o32, d32], axis=1)[:, :3], np.concatenate([o32, d32], axis=1)[:, 3:]),
+        (np.ascontiguousarray(o32[::-1])[::-1], d32.astype(">f4")),
     ]
     for o, d in layouts:
         assert bytes(formats.encode_rays(o, d, 0.5, 7.0)) == want

@@ -121,15 +121,15 @@ _LITTLE = sys.byteorder == "little"
 
 
 def _rows(a):
-    """``a``, an ``(N, 3)`` array, as ``N`` 12-byte values viewing it, or None where its
-    bytes are not the wire's (not packed float32 rows, or a big-endian machine)."""
-    if (
-        _LITTLE
-        and a.ndim == 2
-        and a.dtype == np.float32
-        and a.strides == (12, 4)
-    ):
-        return a.view("V12").reshape(-1)
+    """``a``, an ``(N, 3)`` array, as ``N`` 12-byte values viewing it, or None where a
+    row's bytes are not the wire's (not three adjacent float32, or a big-endian machine).
+    Rows need not be adjacent: the origin and direction halves of an ``(N, 6)`` array
+    (``cast_rays``) are 12-byte values 24 bytes apart."""
+    if _LITTLE and a.ndim == 2 and a.dtype == np.float32 and a.strides[1] == 4:
+        try:
+            return a.view("V12").reshape(-1)
+        except ValueError:  # numpy < 1.23 views only contiguous arrays as another size
+            return None
     return None
 
 
