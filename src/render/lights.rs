@@ -6,13 +6,15 @@
 //! Three kinds of light, each a category picked with equal probability among those the
 //! frame has: the punctual lights (one picked uniformly; a delta light can only be reached
 //! this way, so its sample has weight 1), the emissive triangles (one picked with
-//! probability proportional to its power, emissive factor × strength × area, then a point
-//! uniform in its area), and the constant sky (a cosine-weighted direction about the
+//! probability proportional to its power, its mean emission over its area
+//! ([`Surfaces::mean_emission`]: factor × strength × the emissive texture's mean) × area,
+//! then a point uniform in its area), and the constant sky (a cosine-weighted direction about the
 //! shading normal). Emissive triangles and the sky are also found by BRDF sampling, and
 //! [`LightSampler::triangle_pdf`] and [`LightSampler::sky_pdf`] give the light-sampling
 //! density of such a find. The table is built once per frame; a lookup allocates nothing.
 
 use glam::Vec3;
+use rayon::prelude::*;
 use std::f32::consts::PI;
 
 use super::surface::Surfaces;
@@ -81,25 +83,31 @@ impl LightSampler {
     /// `triangles`, and the sky when `sky` is not black; only the punctual lights when
     /// `area` is false (emitters and sky are then left to BRDF sampling).
     pub fn new(triangles: &[Triangle], surfaces: &Surfaces, sky: Vec3, area: bool) -> LightSampler {
-        let mut emitters = Vec::new();
-        let mut total = 0.0f64;
-        for (prim, tri) in triangles.iter().enumerate().filter(|_| area) {
-            let e = surfaces.emissive_factor(prim);
-            if e == Vec3::ZERO {
-                continue;
-            }
-            let area = 0.5 * Vec3::from(tri.normal()).length();
-            let power = luminance(e).max(e.max_element() * 1e-3) * area;
-            if !(power > 0.0 && power.is_finite()) {
-                continue;
-            }
-            total += power as f64;
-            emitters.push(Emitter {
-                prim: prim as u32,
-                pmf: power,
-                area,
-            });
-        }
+        // Each triangle's power on the pool (a textured emitter reads 16 texels), then
+        // the totals in id order, so the table is the same on any number of threads.
+        let emitters: Vec<Emitter> = if area {
+            triangles
+                .par_iter()
+                .enumerate()
+                .filter_map(|(prim, tri)| {
+                    let e = surfaces.mean_emission(prim);
+                    if e == Vec3::ZERO {
+                        return None;
+                    }
+                    let area = 0.5 * Vec3::from(tri.normal()).length();
+                    let power = luminance(e).max(e.max_element() * 1e-3) * area;
+                    (power > 0.0 && power.is_finite()).then_some(Emitter {
+                        prim: prim as u32,
+                        pmf: power,
+                        area,
+                    })
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut emitters = emitters;
+        let total: f64 = emitters.iter().map(|e| e.pmf as f64).sum();
         let mut cdf = Vec::with_capacity(emitters.len());
         let mut run = 0.0f64;
         for e in &mut emitters {
@@ -271,6 +279,65 @@ mod tests {
         }
         assert_eq!(l.triangle_pdf(0, 1.0, 1.0), 0.0);
         assert!((l.triangle_pdf(2, 2.0, 0.5) - (6.0 / 6.5) / 2.0 * 8.0).abs() < 1e-4);
+    }
+
+    #[test]
+    fn emitters_are_weighed_by_their_emissive_texture() {
+        use crate::render::texture::{Texels, TextureSet};
+        use crate::scene::{Filter, TextureRef, Wrap};
+        use glam::Vec2;
+        // One material, emissive factor 2, whose texture is black on its left half and
+        // white on its right. Triangle 0 maps into the black half, 1 into the white half,
+        // 2 across both (a quarter of its area on the white side).
+        let t = tri([0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        let tris = vec![t; 3];
+        let mut shading = crate::scene::Shading::flat(3);
+        shading.materials = vec![0; 3];
+        let uv = |u: f32, v: f32| Vec2::new(u, v);
+        shading.uv0 = vec![
+            uv(0.0, 0.0),
+            uv(0.4, 0.0),
+            uv(0.0, 1.0),
+            uv(0.6, 0.0),
+            uv(1.0, 0.0),
+            uv(0.6, 1.0),
+            uv(0.0, 0.0),
+            uv(1.0, 0.0),
+            uv(0.0, 1.0),
+        ];
+        let material = Material {
+            emissive_factor: [2.0; 3],
+            emissive_texture: Some(TextureRef {
+                texture: 0,
+                tex_coord: 0,
+                transform: None,
+            }),
+            ..Material::default()
+        };
+        let texels =
+            Texels::from_rgba(2, 1, vec![[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 1.0, 1.0]]).unwrap();
+        let textures =
+            TextureSet::from_texels(vec![(texels, [Wrap::ClampToEdge; 2], Filter::Nearest)]);
+        let s = Surfaces::from_parts(shading, vec![material], textures, Vec::new());
+        assert_eq!(s.mean_emission(0), Vec3::ZERO);
+        assert_eq!(s.mean_emission(1), Vec3::splat(2.0));
+        assert_eq!(s.mean_emission(2), Vec3::splat(0.5));
+        let l = LightSampler::new(&tris, &s, Vec3::ZERO, true);
+        let mut rng = crate::render::rng::Pcg32::new(3, 1);
+        let mut count = [0u32; 3];
+        for _ in 0..10_000 {
+            let u = [0.0, rng.next_f32(), rng.next_f32(), rng.next_f32()];
+            if let Some(LightPick::Triangle { prim, .. }) = l.pick(&tris, u) {
+                count[prim as usize] += 1;
+            }
+        }
+        // Powers 0, 2 and 0.5 (equal areas): no sample is spent on the black triangle,
+        // which BRDF sampling alone then finds with the whole MIS weight.
+        assert_eq!(count[0], 0);
+        let share = count[1] as f64 / 10_000.0;
+        assert!((share - 0.8).abs() < 0.02, "{count:?}");
+        assert_eq!(l.triangle_pdf(0, 1.0, 1.0), 0.0);
+        assert!(l.triangle_pdf(2, 1.0, 1.0) > 0.0);
     }
 
     #[test]

@@ -320,12 +320,18 @@ pub fn render<W: Waves + ?Sized>(
         }
     };
     let lights = if options.integrator == Integrator::Path {
-        LightSampler::new(
-            triangles,
-            surfaces,
-            Vec3::from(options.sky),
-            options.light_sampling,
-        )
+        // On the pool, as a step of its own: weighing textured emitters reads their
+        // textures (LightSampler::new).
+        let mut built = None;
+        waves.run_wave(&mut || {
+            built = Some(LightSampler::new(
+                triangles,
+                surfaces,
+                Vec3::from(options.sky),
+                options.light_sampling,
+            ))
+        })?;
+        built.unwrap_or_default()
     } else {
         LightSampler::default()
     };

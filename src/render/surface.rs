@@ -184,6 +184,33 @@ pub struct Surfaces {
     pub lights: Vec<PunctualLight>,
 }
 
+/// Barycentric weights (1 − u − v, u, v) of the centroids of the 16 triangles that
+/// split a triangle 4 × 4: 10 upright, 6 upside down; one area each, so their mean is an
+/// area mean.
+const SUBDIVISION_CENTROIDS: [[f32; 3]; 16] = {
+    let mut out = [[0.0; 3]; 16];
+    let mut k = 0;
+    let mut i = 0;
+    while i < 4 {
+        let mut j = 0;
+        while i + j < 4 {
+            // Upright: corners (i, j), (i + 1, j), (i, j + 1) in quarters of u and v.
+            let (u, v) = ((i as f32 + 1.0 / 3.0) / 4.0, (j as f32 + 1.0 / 3.0) / 4.0);
+            out[k] = [1.0 - u - v, u, v];
+            k += 1;
+            if i + j < 3 {
+                // Upside down: corners (i + 1, j), (i, j + 1), (i + 1, j + 1).
+                let (u, v) = ((i as f32 + 2.0 / 3.0) / 4.0, (j as f32 + 2.0 / 3.0) / 4.0);
+                out[k] = [1.0 - u - v, u, v];
+                k += 1;
+            }
+            j += 1;
+        }
+        i += 1;
+    }
+    out
+};
+
 /// Where a hit lies on its triangle's vertices: barycentric weights (1 − u − v, u, v) of
 /// its corners, when the triangle has shading vertices.
 #[derive(Clone, Copy)]
@@ -356,11 +383,28 @@ impl Surfaces {
         }
     }
 
-    /// The emissive factor × strength of triangle `prim`'s material, before its texture:
-    /// what light sampling weighs triangles by (a triangle where it is 0 never emits).
-    pub fn emissive_factor(&self, prim: usize) -> Vec3 {
+    /// Triangle `prim`'s emitted radiance averaged over its area: the emissive factor ×
+    /// strength × the emissive texture's mean, estimated at the centroids of the 16
+    /// triangles of its 4 × 4 subdivision. What light sampling weighs triangles by, so
+    /// that a material whose emissive texture is black nearly everywhere (DamagedHelmet's
+    /// lamps on a dark shell) spends its samples on the triangles that glow. An estimate
+    /// that misses a small bright spot only adds noise, never bias: a triangle light
+    /// sampling skips is still found by BRDF sampling, which then carries the full MIS
+    /// weight ([`super::lights::LightSampler::triangle_pdf`] is 0 for it).
+    pub fn mean_emission(&self, prim: usize) -> Vec3 {
         let m = self.material(prim);
-        Vec3::from(m.emissive_factor) * m.emissive_strength
+        let factor = Vec3::from(m.emissive_factor) * m.emissive_strength;
+        if factor == Vec3::ZERO || m.emissive_texture.is_none() {
+            return factor;
+        }
+        let mut sum = Vec3::ZERO;
+        for b in SUBDIVISION_CENTROIDS {
+            let at = self.interp(prim, b);
+            sum += self
+                .tex(&m.emissive_texture, self.uvs(&at), true)
+                .truncate();
+        }
+        factor * sum / SUBDIVISION_CENTROIDS.len() as f32
     }
 
     /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
