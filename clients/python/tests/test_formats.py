@@ -62,9 +62,10 @@ def test_segmented_encoding_sends_the_same_bytes(n, segment):
 
 @pytest.mark.parametrize("n", [0, 1, 7, 1000])
 def test_every_input_layout_encodes_the_same_bytes(n):
-    # Rows of three adjacent float32 (packed, or the halves of an (N, 6) array) are copied
-    # as 12-byte values; every other layout (float64, big-endian, transposed, one broadcast
-    # vector) goes field by field. Both must agree.
+    # Rows of three adjacent float32 (packed, the halves of an (N, 6) array, or float64
+    # rows once a segment is converted) are copied as 12-byte values; components a row
+    # apart (Fortran order, transposed) and one broadcast vector go field by field. All
+    # must agree, and the fast path must be the one packed rows take.
     rng = np.random.default_rng(7 + n)
     o64, d64 = rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
     o32, d32 = o64.astype(np.float32), d64.astype(np.float32)
@@ -84,6 +85,13 @@ def test_every_input_layout_encodes_the_same_bytes(n):
     if n:
         one = bytes(formats.encode_rays(o32[0], d32, 0.5, 7.0))
         assert one == bytes(formats.encode_rays(np.broadcast_to(o64[0], (n, 3)), d64, 0.5, 7.0))
+        # One ray's worth as (1, 3) and (1,) is one value for all rays, in every segment.
+        for args in ((o32[:1], d32, [0.5], [7.0]), (o64[:1], d64, np.float32(0.5), 7.0)):
+            assert bytes(formats.encode_rays(*args)) == one
+            assert b"".join(bytes(p) for p in formats.RaySegments(*args, segment=3)) == one
+        assert formats._rows(o32) is not None
+        assert formats._rows(np.concatenate([o32, d32], axis=1)[:, 3:]) is not None
+        assert formats._rows(np.asfortranarray(o32)) is None or n == 1
 
 
 def test_segmented_encoding_checks_shapes_before_anything_is_sent():

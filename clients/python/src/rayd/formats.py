@@ -82,12 +82,20 @@ def _check(body, magic: int, record_bytes_of, kind: str) -> tuple[int, int]:
     return fmt, count
 
 
+def _numbers(a):
+    """``a`` as an array of real numbers: a float32 or other numeric array stays as it is
+    (converted to float32 a segment at a time while it is written, not all at once);
+    anything else is converted now, which raises for what is not numbers."""
+    a = np.asarray(a)
+    if a.dtype.kind in "fiub" and a.dtype.itemsize <= 8:
+        return a
+    return np.asarray(a, dtype=np.float32)
+
+
 def _ray_arrays(origins, directions, tmin, tmax):
-    """The four inputs as float32 arrays, checked, and the ray count."""
-    o = np.asarray(origins, dtype=np.float32)
-    d = np.asarray(directions, dtype=np.float32)
-    lo = np.asarray(tmin, dtype=np.float32)
-    hi = np.asarray(tmax, dtype=np.float32)
+    """The four inputs as numeric arrays, checked, and the ray count. One ray's worth
+    (``(1, 3)`` or ``(1,)``) is kept as one value for all rays."""
+    o, d, lo, hi = (_numbers(a) for a in (origins, directions, tmin, tmax))
     for name, a, rank in (("origins", o, 2), ("directions", d, 2)):
         if a.ndim not in (1, rank) or a.shape[-1] != 3:
             raise ValueError(f"{name} must have shape (N, 3) or (3,), not {a.shape}")
@@ -102,6 +110,10 @@ def _ray_arrays(origins, directions, tmin, tmax):
             f"tmin {lo.shape}, tmax {hi.shape}"
         ) from None
     n = count[0] if count else 1
+    # A leading axis of length 1 broadcasts: keep its one value, so that slicing rays
+    # start..stop never empties it.
+    o, d = (a[0] if a.ndim == 2 and a.shape[0] == 1 else a for a in (o, d))
+    lo, hi = (a.reshape(()) if a.ndim == 1 and a.shape[0] == 1 else a for a in (lo, hi))
     return o, d, lo, hi, n
 
 
@@ -118,6 +130,10 @@ float32 array into it as ``N`` 12-byte moves instead of ``3 N`` strided element 
 which halves the client's encoding time (BENCHMARKS §15)."""
 
 _LITTLE = sys.byteorder == "little"
+
+_ENCODE_SEGMENT = 1 << 16
+"""Rays converted and written at a time by :func:`encode_rays`: a float64 input is
+converted a segment at a time, never as a whole second copy."""
 
 
 def _rows(a):
@@ -142,11 +158,14 @@ def _fill_rays(rec, o, d, lo, hi, start, stop):
 
     rows = rec.view(_RAY_ROWS) if rec.flags.c_contiguous else None
     for name, a in (("origin", o), ("direction", d)):
+        a = part(a, True)
+        if a.ndim == 2 and a.dtype != np.float32:
+            a = a.astype(np.float32)  # this segment's rows only, while they are in cache
         packed = _rows(a) if rows is not None else None
         if packed is not None:
-            rows[name] = packed[start:stop]
+            rows[name] = packed
         else:
-            rec[name] = part(a, True)
+            rec[name] = a
     rec["tmin"] = part(lo, False)
     rec["tmax"] = part(hi, False)
 
@@ -162,7 +181,9 @@ def encode_rays(origins, directions, tmin=0.0, tmax=np.inf) -> bytearray:
     body = bytearray(HEADER_BYTES + n * RAY_DTYPE.itemsize)
     HEADER.pack_into(body, 0, RAY1_MAGIC, VERSION, 0, n)
     rec = np.frombuffer(body, dtype=RAY_DTYPE, count=n, offset=HEADER_BYTES)
-    _fill_rays(rec, o, d, lo, hi, 0, n)
+    for start in range(0, n, _ENCODE_SEGMENT):
+        stop = min(start + _ENCODE_SEGMENT, n)
+        _fill_rays(rec[start:stop], o, d, lo, hi, start, stop)
     return body
 
 
