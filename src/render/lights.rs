@@ -118,6 +118,19 @@ impl LightSampler {
         if let Some(last) = cdf.last_mut() {
             *last = 1.0;
         }
+        // An emitter whose f32 step of the table is 0 (a probability under about 6e-8,
+        // which textured weights make possible) can never be picked: it leaves the table,
+        // so that `triangle_pdf` answers 0 for it as well and BRDF sampling alone finds it.
+        let mut prev = 0.0f32;
+        let (emitters, cdf): (Vec<Emitter>, Vec<f32>) = emitters
+            .into_iter()
+            .zip(cdf)
+            .filter(|&(_, c)| {
+                let keep = c > prev;
+                prev = prev.max(c);
+                keep
+            })
+            .unzip();
         let punctual = surfaces.lights.len();
         let has = [
             punctual > 0,
@@ -338,6 +351,34 @@ mod tests {
         assert!((share - 0.8).abs() < 0.02, "{count:?}");
         assert_eq!(l.triangle_pdf(0, 1.0, 1.0), 0.0);
         assert!(l.triangle_pdf(2, 1.0, 1.0) > 0.0);
+    }
+
+    #[test]
+    fn an_emitter_too_faint_for_the_table_leaves_it() {
+        // Powers 1 and 1e-10: the faint one's f32 step of the table is 0, so it could
+        // never be picked; it must not keep a light density either.
+        let t = tri([0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        let mut shading = crate::scene::Shading::flat(2);
+        shading.materials = vec![0, 1];
+        let emit = |e: f32| Material {
+            emissive_factor: [e; 3],
+            ..Material::default()
+        };
+        let s = Surfaces::from_parts(
+            shading,
+            vec![emit(1.0), emit(1e-10)],
+            Default::default(),
+            Vec::new(),
+        );
+        let l = LightSampler::new(&[t, t], &s, Vec3::ZERO, true);
+        assert!(l.triangle_pdf(0, 1.0, 1.0) > 0.0);
+        assert_eq!(l.triangle_pdf(1, 1.0, 1.0), 0.0);
+        for u in [0.0, 0.5, 1.0 - f32::EPSILON] {
+            match l.pick(&[t, t], [0.0, u, 0.5, 0.5]) {
+                Some(LightPick::Triangle { prim, .. }) => assert_eq!(prim, 0),
+                other => panic!("{other:?}"),
+            }
+        }
     }
 
     #[test]

@@ -331,7 +331,7 @@ pub fn render<W: Waves + ?Sized>(
                 options.light_sampling,
             ))
         })?;
-        built.unwrap_or_default()
+        built.expect("run_wave runs its step or returns the error")
     } else {
         LightSampler::default()
     };
