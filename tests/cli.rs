@@ -413,6 +413,47 @@ fn mbvh_statistics_are_printed_by_info_and_bench() {
 }
 
 #[test]
+fn a_sequence_frame_is_the_frame_rendered_alone() {
+    // The fox's texture is decoded by the sequence's first frame and shared by the rest:
+    // a later frame must be byte for byte the frame that `--time` renders on its own.
+    let dir = tempfile::tempdir().unwrap();
+    let args = |out: &Path| {
+        vec![
+            "render".to_string(),
+            sample("Fox.glb"),
+            "--out".into(),
+            p(out).into(),
+            "--integrator".into(),
+            "path".into(),
+            "--spp".into(),
+            "2".into(),
+            "--width".into(),
+            "40".into(),
+            "--height".into(),
+            "30".into(),
+            "--threads".into(),
+            "1".into(),
+        ]
+    };
+    let mut seq = args(&dir.path().join("f-#.png"));
+    seq.extend(["--frames".into(), "0:0.2:0.1".into()]);
+    let (ok, j, err) = rayd(&seq.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(ok, "{err}");
+    let outputs = j["outputs"].as_array().unwrap();
+    assert_eq!(outputs.len(), 3, "{j}");
+    let alone = dir.path().join("alone.png");
+    let mut one = args(&alone);
+    one.extend(["--time".into(), "0.2".into()]);
+    let (ok, _, err) = rayd(&one.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read(outputs[2].as_str().unwrap()).unwrap(),
+        std::fs::read(&alone).unwrap(),
+        "frame 2 of the sequence differs from the frame at time 0.2 alone"
+    );
+}
+
+#[test]
 fn render_frames_update_policy_decides_refit_or_rebuild() {
     // Frame 0 always builds; later frames of the walking fox refit or rebuild as told, and
     // the images do not depend on it beyond what a refit's looser boxes cannot change.

@@ -530,6 +530,8 @@ impl App {
         // frame's time for version 1; later versions move positions only, so they shade
         // with the file's static normals and lights.
         let needs_surfaces = request.needs_surfaces();
+        // Decoded by the first frame, shared by the job's later ones.
+        let textures = crate::render::texture::DecodedOnce::default();
         let frame_at = |time: Option<f64>| {
             let time = time.filter(|_| version == Some(1));
             let (geometry, cameras) = rt
@@ -547,10 +549,13 @@ impl App {
                     ),
                     None => None,
                 };
-                Some(Arc::new(
-                    Surfaces::of(posed.as_ref().unwrap_or(&shaded))
-                        .map_err(|e| JobError::Geometry(e.to_string()))?,
-                ))
+                let decoded = textures
+                    .get(&shaded)
+                    .map_err(|e| JobError::Geometry(e.to_string()))?;
+                Some(Arc::new(Surfaces::with_textures(
+                    posed.as_ref().unwrap_or(&shaded),
+                    decoded.clone(),
+                )))
             } else {
                 None
             };

@@ -132,6 +132,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         Parts::Geometry
     };
     let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), parts)?;
+    let textures = crate::render::texture::DecodedOnce::default();
     let frame_at = |time: Option<f64>| {
         let posed = match time {
             None => None,
@@ -142,7 +143,11 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             ),
         };
         let s = posed.as_ref().unwrap_or(&scene);
-        FrameInput::of_scene(s, GeometryKey::new(&path, 1, time), surfaces)
+        FrameInput::of_scene_with(
+            s,
+            GeometryKey::new(&path, 1, time),
+            surfaces.then_some(&textures),
+        )
     };
     let pattern = a.out.display().to_string();
     let mut written = Vec::new();

@@ -10,6 +10,7 @@ use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
 use crate::render::surface::Surfaces;
+use crate::render::texture::DecodedOnce;
 use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
@@ -188,13 +189,25 @@ impl FrameInput {
         key: super::GeometryKey,
         surfaces: bool,
     ) -> Result<FrameInput, JobError> {
-        let surfaces = match surfaces {
-            true => {
-                Some(Arc::new(Surfaces::of(scene).map_err(|e| {
-                    JobError::Geometry(format!("{}: {e}", key.scene))
-                })?))
+        let textures = DecodedOnce::default();
+        FrameInput::of_scene_with(scene, key, surfaces.then_some(&textures))
+    }
+
+    /// [`FrameInput::of_scene`] for one frame of a sequence: `textures`, when the request
+    /// needs surfaces, holds the textures an earlier frame decoded, or decodes them now.
+    pub fn of_scene_with(
+        scene: &crate::scene::Scene,
+        key: super::GeometryKey,
+        textures: Option<&DecodedOnce>,
+    ) -> Result<FrameInput, JobError> {
+        let surfaces = match textures {
+            Some(t) => {
+                let t = t
+                    .get(scene)
+                    .map_err(|e| JobError::Geometry(format!("{}: {e}", key.scene)))?;
+                Some(Arc::new(Surfaces::with_textures(scene, t.clone())))
             }
-            false => None,
+            None => None,
         };
         Ok(FrameInput {
             geometry: Geometry {

@@ -263,14 +263,21 @@ impl Surfaces {
     /// material and face normals everywhere. Decodes the textures the materials use; an
     /// image that does not decode is an error that names it.
     pub fn of(scene: &Scene) -> Result<Surfaces, TextureError> {
+        Ok(Surfaces::with_textures(scene, TextureSet::of(scene)?))
+    }
+
+    /// [`Surfaces::of`] with the scene's textures already decoded (`TextureSet::of` of
+    /// this scene at any pose: animation moves no texel), so that the frames of a
+    /// sequence decode them once ([`super::texture::DecodedOnce`]).
+    pub fn with_textures(scene: &Scene, textures: TextureSet) -> Surfaces {
         let shading = scene
             .shading
             .clone()
             .unwrap_or_else(|| Shading::flat(scene.triangles.len()));
-        Ok(Surfaces {
+        Surfaces {
             shading,
             materials: scene.materials.clone(),
-            textures: TextureSet::of(scene)?,
+            textures,
             lights: scene
                 .lights
                 .iter()
@@ -278,7 +285,7 @@ impl Surfaces {
                 .collect(),
             has_alpha: false,
         }
-        .with_alpha())
+        .with_alpha()
     }
 
     /// Surfaces of `triangles` triangles of glTF's default material, lit by `lights`.

@@ -291,6 +291,23 @@ impl TextureSet {
     }
 }
 
+/// A scene's textures, decoded by the first frame that needs them and shared by the rest
+/// of a sequence: poses and geometry versions move positions, never texels, and decoding
+/// four 2048² images takes longer than rendering a small frame of them.
+#[derive(Debug, Default)]
+pub struct DecodedOnce(std::sync::OnceLock<TextureSet>);
+
+impl DecodedOnce {
+    /// The textures of `scene` (decoded now if no frame has yet).
+    pub fn get(&self, scene: &Scene) -> Result<&TextureSet, TextureError> {
+        if let Some(t) = self.0.get() {
+            return Ok(t);
+        }
+        let decoded = TextureSet::of(scene)?;
+        Ok(self.0.get_or_init(|| decoded))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
