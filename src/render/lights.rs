@@ -8,8 +8,8 @@
 //! this way, so its sample has weight 1), the emissive triangles (one picked with
 //! probability proportional to its power, its mean emission over its area
 //! ([`Surfaces::mean_emission`]: factor × strength × the emissive texture's mean) × area,
-//! then a point uniform in its area), and the constant sky (a cosine-weighted direction about the
-//! shading normal). Emissive triangles and the sky are also found by BRDF sampling, and
+//! then a point uniform in its area), and the constant sky (a cosine-weighted direction
+//! about the shading normal). Emissive triangles and the sky are also found by BRDF sampling, and
 //! [`LightSampler::triangle_pdf`] and [`LightSampler::sky_pdf`] give the light-sampling
 //! density of such a find. The table is built once per frame; a lookup allocates nothing.
 
@@ -85,7 +85,7 @@ impl LightSampler {
     pub fn new(triangles: &[Triangle], surfaces: &Surfaces, sky: Vec3, area: bool) -> LightSampler {
         // Each triangle's power on the pool (a textured emitter reads 16 texels), then
         // the totals in id order, so the table is the same on any number of threads.
-        let emitters: Vec<Emitter> = if area {
+        let mut emitters: Vec<Emitter> = if area {
             triangles
                 .par_iter()
                 .enumerate()
@@ -106,7 +106,6 @@ impl LightSampler {
         } else {
             Vec::new()
         };
-        let mut emitters = emitters;
         let total: f64 = emitters.iter().map(|e| e.pmf as f64).sum();
         let mut cdf = Vec::with_capacity(emitters.len());
         let mut run = 0.0f64;
