@@ -593,7 +593,7 @@ impl TraceIntake {
     }
 
     /// Hands over the last rays of a complete, well-formed body and waits for the answer.
-    pub async fn finish(self, rays: RaySegment) -> Result<(HitBody, TraceReport), AppError> {
+    pub async fn finish(self, mut rays: RaySegment) -> Result<(HitBody, TraceReport), AppError> {
         let done = match self {
             TraceIntake::Streamed { arrive, done } => {
                 let _ = arrive.send(trace::Arrival::Rays(rays));
@@ -605,14 +605,11 @@ impl TraceIntake {
                 request,
                 engine,
                 ticket,
-            } => {
-                let mut rays = rays;
-                on_trace_thread(move || {
-                    let invalid = trace::validate_read(&mut rays, request.invalid)?;
-                    let control = engine.control(Default::default(), None, ticket);
-                    engine.trace(&geometry, &rays.rays, &request, invalid, &control)
-                })?
-            }
+            } => on_trace_thread(move || {
+                let invalid = trace::validate_read(&mut rays, request.invalid)?;
+                let control = engine.control(Default::default(), None, ticket);
+                engine.trace(&geometry, &rays.rays, &request, invalid, &control)
+            })?,
         };
         Ok(done
             .await

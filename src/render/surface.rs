@@ -211,6 +211,11 @@ const SUBDIVISION_CENTROIDS: [[f32; 3]; 16] = {
     out
 };
 
+/// Material `m`'s emissive factor × strength: its emission before its texture.
+fn emissive(m: &Material) -> Vec3 {
+    Vec3::from(m.emissive_factor) * m.emissive_strength
+}
+
 /// Where a hit lies on its triangle's vertices: barycentric weights (1 − u − v, u, v) of
 /// its corners, when the triangle has shading vertices.
 #[derive(Clone, Copy)]
@@ -400,33 +405,35 @@ impl Surfaces {
     /// weight ([`super::lights::LightSampler::triangle_pdf`] is 0 for it).
     pub fn mean_emission(&self, prim: usize) -> Vec3 {
         let m = self.material(prim);
-        let factor = Vec3::from(m.emissive_factor) * m.emissive_strength;
+        let factor = emissive(m);
         if factor == Vec3::ZERO || m.emissive_texture.is_none() {
             return factor;
         }
-        let mut sum = Vec3::ZERO;
-        for b in SUBDIVISION_CENTROIDS {
-            let at = self.interp(prim, b);
-            sum += self
-                .tex(&m.emissive_texture, self.uvs(&at), true)
-                .truncate();
-        }
+        let sum: Vec3 = SUBDIVISION_CENTROIDS
+            .iter()
+            .map(|&b| self.emissive_texel(m, prim, b))
+            .sum();
         factor * sum / SUBDIVISION_CENTROIDS.len() as f32
+    }
+
+    /// Material `m`'s emissive texture (white without one) at barycentric point `b` of
+    /// triangle `prim`: the texture term of [`Surfaces::emission_at`] and of
+    /// [`Surfaces::mean_emission`].
+    fn emissive_texel(&self, m: &Material, prim: usize, b: [f32; 3]) -> Vec3 {
+        let at = self.interp(prim, b);
+        self.tex(&m.emissive_texture, self.uvs(&at), true)
+            .truncate()
     }
 
     /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
     /// probability that the surface is there: what a light sample of that point sees.
     pub fn emission_at(&self, prim: usize, b: [f32; 3]) -> Vec3 {
         let m = self.material(prim);
-        let factor = Vec3::from(m.emissive_factor) * m.emissive_strength;
+        let factor = emissive(m);
         if factor == Vec3::ZERO {
             return Vec3::ZERO;
         }
-        let at = self.interp(prim, b);
-        let e = factor
-            * self
-                .tex(&m.emissive_texture, self.uvs(&at), true)
-                .truncate();
+        let e = factor * self.emissive_texel(m, prim, b);
         if m.alpha_mode == AlphaMode::Opaque {
             return e;
         }
@@ -489,9 +496,7 @@ impl Surfaces {
             ng,
             ns,
             bsdf,
-            emission: Vec3::from(m.emissive_factor)
-                * m.emissive_strength
-                * self.tex(&m.emissive_texture, uv, true).truncate(),
+            emission: emissive(m) * self.tex(&m.emissive_texture, uv, true).truncate(),
         }
     }
 

@@ -13,7 +13,7 @@ import time
 import numpy as np
 from rayd import formats
 
-SEGMENT = 1 << 16
+SEGMENT = formats.SEGMENT
 
 
 def timed(fn, runs):

@@ -131,9 +131,9 @@ which halves the client's encoding time (BENCHMARKS §15)."""
 
 _LITTLE = sys.byteorder == "little"
 
-_ENCODE_SEGMENT = 1 << 16
-"""Rays converted and written at a time by :func:`encode_rays`: a float64 input is
-converted a segment at a time, never as a whole second copy."""
+SEGMENT = 1 << 16
+"""Rays converted and written at a time by :func:`encode_rays` and :class:`RaySegments`:
+a float64 input is converted a segment at a time, never as a whole second copy."""
 
 
 def _rows(a):
@@ -156,12 +156,12 @@ def _fill_rays(rec, o, d, lo, hi, start, stop):
         # One value (or vector) for all rays stays as it is and broadcasts.
         return a[start:stop] if a.ndim == (2 if vector else 1) else a
 
-    rows = rec.view(_RAY_ROWS) if rec.flags.c_contiguous else None
+    rows = rec.view(_RAY_ROWS)
     for name, a in (("origin", o), ("direction", d)):
         a = part(a, True)
         if a.ndim == 2 and a.dtype != np.float32:
             a = a.astype(np.float32)  # this segment's rows only, while they are in cache
-        packed = _rows(a) if rows is not None else None
+        packed = _rows(a)
         if packed is not None:
             rows[name] = packed
         else:
@@ -181,8 +181,8 @@ def encode_rays(origins, directions, tmin=0.0, tmax=np.inf) -> bytearray:
     body = bytearray(HEADER_BYTES + n * RAY_DTYPE.itemsize)
     HEADER.pack_into(body, 0, RAY1_MAGIC, VERSION, 0, n)
     rec = np.frombuffer(body, dtype=RAY_DTYPE, count=n, offset=HEADER_BYTES)
-    for start in range(0, n, _ENCODE_SEGMENT):
-        stop = min(start + _ENCODE_SEGMENT, n)
+    for start in range(0, n, SEGMENT):
+        stop = min(start + SEGMENT, n)
         _fill_rays(rec[start:stop], o, d, lo, hi, start, stop)
     return body
 
@@ -200,7 +200,7 @@ class RaySegments:
     retried request).
     """
 
-    def __init__(self, origins, directions, tmin=0.0, tmax=np.inf, segment: int = 1 << 16):
+    def __init__(self, origins, directions, tmin=0.0, tmax=np.inf, segment: int = SEGMENT):
         self._o, self._d, self._lo, self._hi, self.count = _ray_arrays(
             origins, directions, tmin, tmax
         )
