@@ -711,3 +711,81 @@ fn alpha_modes_cut_blend_and_shadow() {
         0.75 * want
     );
 }
+
+/// A floor tiled 64 times with a 256² checker of black and white texels, seen from above
+/// so that a pixel spans hundreds of texels: with glTF's default sampler (trilinear MIP
+/// mapping) every pixel's albedo is the checker's mean, half the light; a sampler whose
+/// `minFilter` is `NEAREST` (no mipmaps) reads single texels, and the pixels alias to
+/// black and white.
+#[test]
+fn minified_textures_are_filtered_unless_the_sampler_says_not_to() {
+    use rayd::render::mipmap::Filtering;
+    use rayd::render::texture::{Texels, TextureSet};
+    use rayd::scene::{Filter, Mipmap, Sampler, TextureRef};
+    let floor = vec![
+        tri([-1.0, 0.0, -1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0]),
+        tri([-1.0, 0.0, -1.0], [-1.0, 0.0, 1.0], [1.0, 0.0, 1.0]),
+    ];
+    let n = 256u32;
+    let checker: Vec<[f32; 4]> = (0..n * n)
+        .map(|i| {
+            let v = ((i % n + i / n) % 2) as f32;
+            [v, v, v, 1.0]
+        })
+        .collect();
+    let texels = Texels::from_rgba(n, n, checker).unwrap();
+    let corner = |x: f32, z: f32| glam::Vec2::new((x + 1.0) * 32.0, (z + 1.0) * 32.0);
+    let camera = CameraChoice::LookAt {
+        eye: [0.0, 2.0, 0.0],
+        target: [0.0; 3],
+        up: [0.0, 0.0, -1.0],
+        fov: 40.0,
+    };
+    let albedo = |sampler: Sampler| -> Vec<f32> {
+        let mut shading = rayd::scene::Shading::flat(floor.len());
+        shading.materials = vec![0, 0];
+        shading.uv0 = floor
+            .iter()
+            .flat_map(|t| t.v.map(|p| corner(p[0], p[2])))
+            .collect();
+        let material = rayd::scene::Material {
+            base_color_texture: Some(TextureRef {
+                texture: 0,
+                tex_coord: 0,
+                transform: None,
+            }),
+            ..lambertian(1.0)
+        };
+        let textures = TextureSet::from_texels(vec![(texels.clone(), Filtering::of(&sampler))]);
+        let s = Surfaces::from_parts(shading, vec![material], textures, vec![]);
+        let options = RenderOptions {
+            width: 32,
+            height: 32,
+            integrator: Integrator::Path,
+            bounces: 1,
+            aovs: AovSet::of(&[rayd::render::Aov::Albedo]),
+            ..RenderOptions::default()
+        };
+        let img = render_surfaces(&floor, &options, &camera, &s);
+        let albedo = img.aovs.albedo.unwrap();
+        albedo
+            .iter()
+            .zip(&img.alpha)
+            .filter(|(_, &a)| a == 1.0)
+            .map(|(c, _)| c[0])
+            .collect()
+    };
+    let filtered = albedo(Sampler::default());
+    assert!(filtered.len() > 500, "{}", filtered.len());
+    for a in &filtered {
+        assert!((a - 0.5).abs() < 0.02, "{a}");
+    }
+    let unfiltered = albedo(Sampler {
+        min_filter: Some(Filter::Nearest),
+        mipmap: Mipmap::None,
+        ..Sampler::default()
+    });
+    assert!(unfiltered.iter().all(|&a| a == 0.0 || a == 1.0));
+    let white = unfiltered.iter().filter(|&&a| a == 1.0).count();
+    assert!(white > 100 && white + 100 < unfiltered.len(), "{white}");
+}

@@ -224,6 +224,17 @@ impl ViewCamera {
         self.rays(&[x], &[y], width, height)[0]
     }
 
+    /// The ray cone of a pixel of an image `height` pixels high: its width at the eye and
+    /// its spread angle (radians) — an angle for a perspective camera, a width for an
+    /// orthographic one. What texture lookups filter over ([`super::mipmap`]).
+    pub fn pixel_cone(&self, height: u32) -> (f32, f32) {
+        let h = f64::from(height.max(1));
+        match self.kind {
+            ViewKind::Perspective { half_h, .. } => (0.0, (2.0 * half_h / h) as f32),
+            ViewKind::Orthographic { half_h, .. } => ((2.0 * half_h / h) as f32, 0.0),
+        }
+    }
+
     /// [`ViewCamera::ray`] of `N` image positions, each lane computed exactly as a lone
     /// ray is, but stage by stage across the lanes, so that the rays' latency chains (two
     /// divisions, then a square root and three more divisions, each waiting on the last)

@@ -295,6 +295,7 @@ mod tests {
 
     #[test]
     fn emitters_are_weighed_by_their_emissive_texture() {
+        use crate::render::mipmap::Filtering;
         use crate::render::texture::{Texels, TextureSet};
         use crate::scene::{Filter, TextureRef, Wrap};
         use glam::Vec2;
@@ -328,8 +329,10 @@ mod tests {
         };
         let texels =
             Texels::from_rgba(2, 1, vec![[0.0, 0.0, 0.0, 1.0], [1.0, 1.0, 1.0, 1.0]]).unwrap();
-        let textures =
-            TextureSet::from_texels(vec![(texels, [Wrap::ClampToEdge; 2], Filter::Nearest)]);
+        let textures = TextureSet::from_texels(vec![(
+            texels,
+            Filtering::single(Filter::Nearest, [Wrap::ClampToEdge; 2]),
+        )]);
         let s = Surfaces::from_parts(shading, vec![material], textures, Vec::new());
         assert_eq!(s.mean_emission(0), Vec3::ZERO);
         assert_eq!(s.mean_emission(1), Vec3::splat(2.0));

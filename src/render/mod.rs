@@ -9,6 +9,7 @@ pub mod brdf;
 pub mod camera;
 pub mod image;
 pub mod lights;
+pub mod mipmap;
 pub mod rng;
 pub mod sampling;
 pub mod surface;
@@ -605,13 +606,21 @@ fn render_wave(
             let rays = camera.rays(&x, &y, w, h);
             group.copy_from_slice(&rays[..group.len()]);
         });
+    // Each sample's cone covers its share of the pixel: the box filter averages the
+    // pixel's samples (pbrt-v4's scale of ray differentials, 1/√spp and at most 8×).
+    let (width, spread) = camera.pixel_cone(h);
+    let share = (1.0 / (spp as f32).sqrt()).max(0.125);
+    let cone = Cone {
+        width: width * share,
+        spread: spread * share,
+    };
     paths.state.clear();
     paths
         .state
         .par_extend(paths.rays.par_iter().enumerate().map(|(i, ray)| {
             let p = start + i;
             let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-            PathState::new(i, ray, rng)
+            PathState::new(i, ray, rng, cone)
         }));
     trace_closest(frame, paths, trace, stats);
     wave.covered
@@ -626,7 +635,9 @@ fn render_wave(
             .zip(&paths.hits[..])
             .for_each(|((q, (p, ray)), hit)| {
                 *q = if hit.is_hit() {
-                    let sp = surfaces.at(&triangles[hit.prim as usize], hit, Vec3::from(ray.dir));
+                    let tri = &triangles[hit.prim as usize];
+                    let width = p.cone.width_at(p.travelled + hit.t);
+                    let sp = surfaces.at(tri, hit, Vec3::from(ray.dir), width);
                     Primary {
                         depth: p.travelled + hit.t,
                         normal: sp.ns.to_array(),
@@ -706,10 +717,12 @@ struct PathState {
     prev_pdf: f32,
     /// Whether `hit` still awaits its presence test (alpha).
     pending: bool,
+    /// The ray cone of the segment, from its start.
+    cone: Cone,
 }
 
 impl PathState {
-    fn new(pixel: usize, ray: &Ray, rng: Pcg32) -> PathState {
+    fn new(pixel: usize, ray: &Ray, rng: Pcg32, cone: Cone) -> PathState {
         PathState {
             pixel,
             throughput: Vec3::ONE,
@@ -719,6 +732,35 @@ impl PathState {
             prev_ns: Vec3::ZERO,
             prev_pdf: 0.0,
             pending: false,
+            cone,
+        }
+    }
+}
+
+/// A ray cone (*Ray Tracing Gems* ch. 20): how wide a path's ray is where it starts and
+/// how fast it widens, so that a texture lookup can filter over what the ray stands for
+/// ([`mipmap`]).
+#[derive(Clone, Copy, Debug)]
+struct Cone {
+    /// Width at the segment's start.
+    width: f32,
+    /// Spread angle, radians.
+    spread: f32,
+}
+
+impl Cone {
+    /// Width `distance` along the segment.
+    fn width_at(self, distance: f32) -> f32 {
+        self.width + self.spread * distance
+    }
+
+    /// The cone of a ray scattered where this one is `width` wide into a direction of
+    /// density `pdf`: the lobe widens it by about the angle that a solid angle of `1/pdf`
+    /// subtends (a diffuse bounce by more than a radian, a mirror-like one by little).
+    fn scattered(self, width: f32, pdf: f32) -> Cone {
+        Cone {
+            width,
+            spread: self.spread + pdf.sqrt().recip(),
         }
     }
 }
@@ -982,7 +1024,8 @@ fn shade_vertex(
         };
     }
     let tri = &frame.triangles[hit.prim as usize];
-    let sp = frame.surfaces.at(tri, hit, dir);
+    let width = p.cone.width_at(p.travelled + hit.t);
+    let sp = frame.surfaces.at(tri, hit, dir, width);
     let pos = Vec3::from(ray.at(hit.t));
     let mut emitted = thr * sp.emission;
     if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
@@ -1098,6 +1141,7 @@ fn shade_vertex(
                 tmax: f32::INFINITY,
             };
             p.throughput = throughput;
+            p.cone = p.cone.scattered(width, s.pdf);
             p.travelled = 0.0;
             p.prev_pos = pos;
             p.prev_ns = sp.ns;

@@ -17,7 +17,7 @@
 use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 
 use super::brdf::Bsdf;
-use super::texture::{TextureError, TextureSet};
+use super::texture::{Lookup, TextureError, TextureSet};
 use crate::geometry::{Hit, Triangle};
 use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading, TextureRef};
 
@@ -352,9 +352,38 @@ impl Surfaces {
         [at.vec2(&self.shading.uv0), at.vec2(&self.shading.uv1)]
     }
 
-    fn tex(&self, r: &Option<TextureRef>, uv: [Vec2; 2], srgb: bool) -> Vec4 {
+    /// The lookup at `at` on triangle `tri` for a ray cone `width` wide there, meeting the
+    /// surface at cosine `cos`: the cone's footprint across the surface (`width / cos`)
+    /// scaled into each texture coordinate set by the triangle's ratio of texture area to
+    /// world area.
+    fn lookup(&self, tri: &Triangle, at: &Interp, width: f32, cos: f32) -> Lookup {
+        let uv = self.uvs(at);
+        let (Some(c), true) = (at.corners, width > 0.0) else {
+            return Lookup::point(uv);
+        };
+        let world = Vec3::from(tri.normal()).length();
+        let log2_across = (width / cos.max(1e-6)).log2();
+        let set = |attr: &[Vec2]| -> f32 {
+            let corner = |k: usize| attr.get(c[k] as usize).copied().unwrap_or_default();
+            let (a, b, d) = (corner(0), corner(1), corner(2));
+            let area = (b - a).perp_dot(d - a).abs();
+            // Both areas are doubled; their ratio is not.
+            log2_across + 0.5 * (area / world).log2()
+        };
+        let log2_width = [
+            set(&self.shading.uv0),
+            if self.shading.uv1.is_empty() {
+                f32::NEG_INFINITY
+            } else {
+                set(&self.shading.uv1)
+            },
+        ];
+        Lookup { uv, log2_width }
+    }
+
+    fn tex(&self, r: &Option<TextureRef>, at: &Lookup, srgb: bool) -> Vec4 {
         r.as_ref()
-            .and_then(|r| self.textures.sample(r, uv, srgb))
+            .and_then(|r| self.textures.sample(r, at, srgb))
             .unwrap_or(Vec4::ONE)
     }
 
@@ -385,7 +414,9 @@ impl Surfaces {
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let alpha = m.base_color_factor[3]
             * at.colour(&self.shading.colors).w
-            * self.tex(&m.base_color_texture, self.uvs(&at), true).w;
+            * self
+                .tex(&m.base_color_texture, &Lookup::point(self.uvs(&at)), true)
+                .w;
         match cutoff {
             Some(c) if alpha >= c => Presence::Opaque,
             Some(_) => Presence::Cut,
@@ -421,7 +452,7 @@ impl Surfaces {
     /// [`Surfaces::mean_emission`].
     fn emissive_texel(&self, m: &Material, prim: usize, b: [f32; 3]) -> Vec3 {
         let at = self.interp(prim, b);
-        self.tex(&m.emissive_texture, self.uvs(&at), true)
+        self.tex(&m.emissive_texture, &Lookup::point(self.uvs(&at)), true)
             .truncate()
     }
 
@@ -446,14 +477,16 @@ impl Surfaces {
         e * self.presence(&hit).coverage()
     }
 
-    /// The surface at `hit` of triangle `tri` for a ray of direction `dir`.
-    pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3) -> SurfacePoint {
+    /// The surface at `hit` of triangle `tri` for a ray of direction `dir` whose cone is
+    /// `width` wide there (0: a point); the width chooses the textures' MIP levels
+    /// ([`super::mipmap`]).
+    pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> SurfacePoint {
         let prim = hit.prim as usize;
         let ng = Vec3::from(tri.normal()).normalize_or_zero();
         let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
-        let uv = self.uvs(&at);
+        let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
         // The interpolated normal as stored (its own side), or the face normal.
         let smooth = at
             .vec3(&self.shading.normals)
@@ -461,7 +494,7 @@ impl Surfaces {
             .unwrap_or(ng);
         let mut ns = smooth;
         if let Some(r) = &m.normal_texture {
-            if let Some(t) = self.textures.sample(r, uv, false) {
+            if let Some(t) = self.textures.sample(r, &uv, false) {
                 if let Some(n) = self.tangent_frame(tri, &at, smooth, r.tex_coord).and_then(
                     |(tangent, bitangent)| {
                         let s = m.normal_scale;
@@ -482,9 +515,9 @@ impl Surfaces {
         let colour = at.colour(&self.shading.colors);
         let base = Vec3::from_slice(&m.base_color_factor[..3])
             * colour.truncate()
-            * self.tex(&m.base_color_texture, uv, true).truncate();
+            * self.tex(&m.base_color_texture, &uv, true).truncate();
         // glTF: roughness in G, metalness in B.
-        let mr = self.tex(&m.metallic_roughness_texture, uv, false);
+        let mr = self.tex(&m.metallic_roughness_texture, &uv, false);
         let bsdf = Bsdf::new(
             base,
             m.metallic_factor * mr.z,
@@ -496,7 +529,7 @@ impl Surfaces {
             ng,
             ns,
             bsdf,
-            emission: emissive(m) * self.tex(&m.emissive_texture, uv, true).truncate(),
+            emission: emissive(m) * self.tex(&m.emissive_texture, &uv, true).truncate(),
         }
     }
 
@@ -602,6 +635,7 @@ mod tests {
     /// grows down the image), and a normal texture of the one texel `rgb`.
     fn normal_mapped(rgb: [f32; 3], scale: f32, tangents: Vec<Vec4>) -> (Surfaces, Triangle) {
         use super::super::texture::{Texels, TextureSet};
+        use crate::render::mipmap::Filtering;
         use crate::scene::{Filter, Wrap};
         let tri = Triangle {
             v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
@@ -624,7 +658,10 @@ mod tests {
             ..Material::default()
         };
         let texels = Texels::from_rgba(1, 1, vec![[rgb[0], rgb[1], rgb[2], 1.0]]).unwrap();
-        let textures = TextureSet::from_texels(vec![(texels, [Wrap::Repeat; 2], Filter::Nearest)]);
+        let textures = TextureSet::from_texels(vec![(
+            texels,
+            Filtering::single(Filter::Nearest, [Wrap::Repeat; 2]),
+        )]);
         (
             Surfaces::from_parts(shading, vec![material], textures, Vec::new()),
             tri,
@@ -638,7 +675,7 @@ mod tests {
             v: 0.25,
             prim: 0,
         };
-        s.at(tri, &hit, dir).ns
+        s.at(tri, &hit, dir, 0.0).ns
     }
 
     #[test]

@@ -1,14 +1,18 @@
 //! Texture lookups for `path`: the scene's images decoded with the `image` crate (only those
 //! a material uses, and only when a render shades), then sampled as glTF says: texture
 //! coordinates through `KHR_texture_transform`, each axis wrapped by its sampler's mode,
-//! bilinear filtering unless the sampler asks for nearest, and colour textures (base colour,
+//! the sampler's magnification and minification filters, and colour textures (base colour,
 //! emissive) decoded from sRGB before filtering while data textures (metallic-roughness,
-//! normal) stay linear. Mipmaps are not built: a texel per lookup, without minification filtering.
+//! normal) stay linear. Minification reads a MIP pyramid ([`super::mipmap`]) at the level
+//! of the lookup's footprint.
 
 use std::sync::Arc;
 
 use glam::{Vec2, Vec4};
 
+use rayon::prelude::*;
+
+use super::mipmap::{Filtering, Pyramid};
 use crate::scene::{Filter, Scene, TextureRef, Wrap};
 
 /// Most pixels of one texture: 8192 × 8192, 1 GiB once decoded to f32 RGBA.
@@ -54,6 +58,33 @@ enum Store {
 /// `to_linear(i / 255)` for every 8-bit code `i`: the same values a lookup would compute.
 static SRGB_TO_LINEAR: std::sync::LazyLock<[f32; 256]> =
     std::sync::LazyLock::new(|| std::array::from_fn(|i| to_linear(unit8(i as u8))));
+
+/// The linear values halfway between consecutive 8-bit sRGB codes: the code nearest (in
+/// sRGB) to a linear value is the number of bounds at or below it.
+static SRGB_CODE_BOUNDS: std::sync::LazyLock<[f32; 255]> =
+    std::sync::LazyLock::new(|| std::array::from_fn(|k| to_linear((k as f32 + 0.5) / 255.0)));
+
+/// Per 1/4096 of linear light, the first code whose bound lies above its start: where
+/// [`srgb_code`] begins its search, at most a code or two below the answer.
+static SRGB_CODE_START: std::sync::LazyLock<[u8; 4097]> = std::sync::LazyLock::new(|| {
+    std::array::from_fn(|k| {
+        let v = k as f32 / 4096.0;
+        SRGB_CODE_BOUNDS.partition_point(|&b| b <= v) as u8
+    })
+});
+
+/// The 8-bit sRGB code nearest to linear value `v` (clamped to [0, 1]): the count of
+/// [`SRGB_CODE_BOUNDS`] at or below it.
+#[inline]
+fn srgb_code(v: f32) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let bounds = &*SRGB_CODE_BOUNDS;
+    let mut c = SRGB_CODE_START[(v * 4096.0) as usize] as usize;
+    while c < bounds.len() && bounds[c] <= v {
+        c += 1;
+    }
+    c as u8
+}
 
 /// An 8-bit code as a value in [0, 1], as the `image` crate converts it.
 #[inline]
@@ -117,6 +148,135 @@ impl Texels {
         )
     }
 
+    /// Width in texels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in texels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    /// Bytes the texels take.
+    pub fn bytes(&self) -> usize {
+        match &self.texels {
+            Store::Rgba8(t) => std::mem::size_of_val(&t[..]),
+            Store::RgbaF32(t) => std::mem::size_of_val(&t[..]),
+        }
+    }
+
+    /// The next MIP level: half the size on each axis (rounded down, at least 1), each
+    /// texel the mean of the 2 × 2 texels it covers (the last row and column of an odd
+    /// side take in the 3 left over, so that every texel counts). Colour images (`srgb`)
+    /// are averaged in linear light and encoded back: averaging sRGB codes would darken
+    /// every edge between light and dark. `None` for a 1 × 1 image.
+    pub fn half(&self, srgb: bool) -> Option<Texels> {
+        if self.width == 1 && self.height == 1 {
+            return None;
+        }
+        let (w, h) = ((self.width / 2).max(1), (self.height / 2).max(1));
+        let span = |i: u32, n: u32, m: u32| -> std::ops::Range<i64> {
+            let lo = (2 * i).min(n - 1);
+            let hi = if i + 1 == m { n } else { 2 * i + 2 };
+            lo as i64..hi as i64
+        };
+        let mean = |i: u32, j: u32| -> Vec4 {
+            let (xs, ys) = (span(i, self.width, w), span(j, self.height, h));
+            let mut sum = Vec4::ZERO;
+            for y in ys.clone() {
+                for x in xs.clone() {
+                    sum += self.texel(x, y, srgb);
+                }
+            }
+            sum / ((xs.end - xs.start) * (ys.end - ys.start)) as f32
+        };
+        let texels = match &self.texels {
+            // 8-bit images (nearly all): their own loop, through the sRGB tables, since a
+            // 2048² image's levels are 1.4M texels each averaging four.
+            Store::Rgba8(src) => {
+                let lut = &*SRGB_TO_LINEAR;
+                let sw = self.width as usize;
+                let mut out = vec![[0u8; 4]; w as usize * h as usize];
+                // Columns (and rows) whose texel averages exactly two: all but the last of
+                // an odd side, none of a side of 1.
+                let pairs = |n: u32, m: u32| match n {
+                    1 => 0,
+                    n if n % 2 == 0 => m as usize,
+                    _ => m as usize - 1,
+                };
+                let (pair_cols, pair_rows) = (pairs(self.width, w), pairs(self.height, h));
+                out.par_chunks_mut(w as usize)
+                    .enumerate()
+                    .for_each(|(j, row)| {
+                        let ys = span(j as u32, self.height, h);
+                        let mut rest = 0;
+                        if j < pair_rows {
+                            // The common case, 2 × 2, in a loop of its own.
+                            let r0 = &src[2 * j * sw..][..2 * pair_cols];
+                            let r1 = &src[(2 * j + 1) * sw..][..2 * pair_cols];
+                            let quads = r0.chunks_exact(2).zip(r1.chunks_exact(2));
+                            for (t, (a, b)) in row[..pair_cols].iter_mut().zip(quads) {
+                                let q = [a[0], a[1], b[0], b[1]];
+                                *t = std::array::from_fn(|c| {
+                                    let sum: u32 = q.iter().map(|p| u32::from(p[c])).sum();
+                                    ((sum + 2) >> 2) as u8
+                                });
+                                if srgb {
+                                    for c in 0..3 {
+                                        let light: f32 = q.iter().map(|p| lut[p[c] as usize]).sum();
+                                        t[c] = srgb_code(light * 0.25);
+                                    }
+                                }
+                            }
+                            rest = pair_cols;
+                        }
+                        for (i, t) in row.iter_mut().enumerate().skip(rest) {
+                            let xs = span(i as u32, self.width, w);
+                            let n = ((xs.end - xs.start) * (ys.end - ys.start)) as u32;
+                            let (mut light, mut code) = ([0f32; 3], [0u32; 4]);
+                            for y in ys.clone() {
+                                for x in xs.clone() {
+                                    let p = src[y as usize * sw + x as usize];
+                                    for c in 0..4 {
+                                        code[c] += u32::from(p[c]);
+                                    }
+                                    for c in 0..3 {
+                                        light[c] += lut[p[c] as usize];
+                                    }
+                                }
+                            }
+                            // The nearest code to the mean: of the light for colour, of
+                            // the codes for data and alpha.
+                            *t = code.map(|k| ((k + n / 2) / n) as u8);
+                            if srgb {
+                                for c in 0..3 {
+                                    t[c] = srgb_code(light[c] / n as f32);
+                                }
+                            }
+                        }
+                    });
+                Store::Rgba8(out)
+            }
+            Store::RgbaF32(_) => {
+                let mut out = vec![[0f32; 4]; w as usize * h as usize];
+                out.par_chunks_mut(w as usize)
+                    .enumerate()
+                    .for_each(|(j, row)| {
+                        for (i, t) in row.iter_mut().enumerate() {
+                            *t = encode_f32(mean(i as u32, j as u32), srgb);
+                        }
+                    });
+                Store::RgbaF32(out)
+            }
+        };
+        Some(Texels {
+            width: w,
+            height: h,
+            texels,
+        })
+    }
+
     /// Texel `(x, y)` (in range), linearised from sRGB when `srgb`; alpha stays linear.
     #[inline]
     fn texel(&self, x: i64, y: i64, srgb: bool) -> Vec4 {
@@ -165,18 +325,32 @@ impl Texels {
                 let (x0, y0) = (x.floor(), y.floor());
                 let (fx, fy) = (x - x0, y - y0);
                 let (i, j) = (x0 as i64, y0 as i64);
-                let at = |di: i64, dj: i64| {
-                    self.texel(
-                        wrap_index(i + di, w, wrap[0]),
-                        wrap_index(j + dj, h, wrap[1]),
-                        srgb,
-                    )
-                };
-                let top = at(0, 0) * (1.0 - fx) + at(1, 0) * fx;
-                let bottom = at(0, 1) * (1.0 - fx) + at(1, 1) * fx;
+                // Each axis wrapped once for both of its taps.
+                let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
+                let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
+                let top = self.texel(i0, j0, srgb) * (1.0 - fx) + self.texel(i1, j0, srgb) * fx;
+                let bottom = self.texel(i0, j1, srgb) * (1.0 - fx) + self.texel(i1, j1, srgb) * fx;
                 top * (1.0 - fy) + bottom * fy
             }
         }
+    }
+}
+
+/// A linear value as the f32 texel a level stores (sRGB-encoded colour when `srgb`).
+fn encode_f32(v: Vec4, srgb: bool) -> [f32; 4] {
+    if srgb {
+        [to_srgb(v.x), to_srgb(v.y), to_srgb(v.z), v.w]
+    } else {
+        v.to_array()
+    }
+}
+
+/// linear → sRGB (IEC 61966-2-1), the inverse of [`to_linear`].
+fn to_srgb(c: f32) -> f32 {
+    if c <= 0.003_130_8 {
+        c * 12.92
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
     }
 }
 
@@ -205,89 +379,150 @@ fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     }
 }
 
-/// A texture ready to sample: its decoded image, the sampler's wraps (S, T) and filter.
-type Bound = (Arc<Texels>, [Wrap; 2], Filter);
+/// A texture ready to sample: its image's MIP pyramid and its sampler.
+type Bound = (Arc<Pyramid>, Filtering);
 
-/// The textures of a scene, decoded.
+/// The textures of a scene, decoded, each with the pyramid of its use: colour textures
+/// (sampled as sRGB) are filtered down in linear light, data textures as stored, so one
+/// texture used both ways (rare) has a pyramid of each.
 #[derive(Clone, Debug, Default)]
 pub struct TextureSet {
-    /// Per scene texture: its decoded image (`None`: no material uses it), sampler wraps and
-    /// filter.
-    textures: Vec<Option<Bound>>,
+    /// Per scene texture, per use (`[data, colour]`): its pyramid (`None`: no material
+    /// uses it so) and sampler.
+    textures: Vec<[Option<Bound>; 2]>,
+}
+
+/// Where a shading point's lookups read: the texture coordinates of each set and the
+/// footprint of the ray cone there, as log2 of its width in each set's units (`-∞`: a
+/// point, so the finest level).
+#[derive(Clone, Copy, Debug)]
+pub struct Lookup {
+    /// `TEXCOORD_0` and `TEXCOORD_1`.
+    pub uv: [Vec2; 2],
+    /// log2 of the footprint's width in each set's units.
+    pub log2_width: [f32; 2],
+}
+
+impl Lookup {
+    /// A lookup of one point (no footprint): level 0, as light sampling and alpha tests
+    /// read.
+    pub fn point(uv: [Vec2; 2]) -> Lookup {
+        Lookup {
+            uv,
+            log2_width: [f32::NEG_INFINITY; 2],
+        }
+    }
 }
 
 impl TextureSet {
     /// Decodes every image that a material of `scene` samples through a texture this
-    /// renderer uses (base colour, metallic-roughness, normal, emissive), each image once.
+    /// renderer uses (base colour, metallic-roughness, normal, emissive), each image once,
+    /// and builds its pyramid for each use.
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
-        let mut used = vec![false; scene.textures.len()];
+        let mut used = vec![[false; 2]; scene.textures.len()];
         for m in &scene.materials {
-            for r in [
-                m.base_color_texture,
-                m.metallic_roughness_texture,
-                m.normal_texture,
-                m.emissive_texture,
-            ]
-            .into_iter()
-            .flatten()
-            {
-                if let Some(u) = used.get_mut(r.texture) {
-                    *u = true;
+            let uses = [
+                (m.base_color_texture, true),
+                (m.metallic_roughness_texture, false),
+                (m.normal_texture, false),
+                (m.emissive_texture, true),
+            ];
+            for (r, srgb) in uses {
+                if let Some(u) = r.and_then(|r| used.get_mut(r.texture)) {
+                    u[srgb as usize] = true;
                 }
             }
         }
-        let mut decoded: Vec<Option<Arc<Texels>>> = vec![None; scene.images.len()];
-        let mut textures = Vec::with_capacity(scene.textures.len());
-        for (t, used) in scene.textures.iter().zip(used) {
-            if !used || t.image >= scene.images.len() {
-                textures.push(None);
+        // Each image decoded once, with a pyramid per use its textures make of it.
+        let mut uses = vec![[false; 2]; scene.images.len()];
+        for (t, used) in scene.textures.iter().zip(&used) {
+            if let Some(u) = uses.get_mut(t.image) {
+                u[0] |= used[0];
+                u[1] |= used[1];
+            }
+        }
+        let mut pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = Vec::with_capacity(uses.len());
+        for (image, u) in uses.iter().enumerate() {
+            if !(u[0] || u[1]) {
+                pyramids.push([None, None]);
                 continue;
             }
-            let texels = match &decoded[t.image] {
-                Some(d) => Arc::clone(d),
-                None => {
-                    let im = &scene.images[t.image];
-                    let d = Arc::new(Texels::decode(&im.bytes).map_err(|reason| {
-                        TextureError::Decode {
-                            image: t.image,
-                            mime: im.mime_type.clone(),
-                            reason,
-                        }
-                    })?);
-                    decoded[t.image] = Some(Arc::clone(&d));
-                    d
+            let im = &scene.images[image];
+            let base = Texels::decode(&im.bytes).map_err(|reason| TextureError::Decode {
+                image,
+                mime: im.mime_type.clone(),
+                reason,
+            })?;
+            pyramids.push(match *u {
+                [true, true] => [
+                    Some(Arc::new(Pyramid::new(base.clone(), false))),
+                    Some(Arc::new(Pyramid::new(base, true))),
+                ],
+                [data, _] => {
+                    let p = Some(Arc::new(Pyramid::new(base, !data)));
+                    if data {
+                        [p, None]
+                    } else {
+                        [None, p]
+                    }
                 }
-            };
-            // Magnification's filter when given (no mipmaps: every lookup is treated alike).
-            let filter = t
-                .sampler
-                .mag_filter
-                .or(t.sampler.min_filter)
-                .unwrap_or(Filter::Linear);
-            textures.push(Some((texels, [t.sampler.wrap_s, t.sampler.wrap_t], filter)));
+            });
         }
+        let textures = scene
+            .textures
+            .iter()
+            .zip(used)
+            .map(|(t, used)| {
+                [0, 1].map(|k| {
+                    let p = pyramids.get(t.image)?[k].as_ref().filter(|_| used[k])?;
+                    Some((Arc::clone(p), Filtering::of(&t.sampler)))
+                })
+            })
+            .collect();
         Ok(TextureSet { textures })
     }
 
-    /// Textures from decoded images, in texture-index order (tests, generated scenes).
-    pub fn from_texels(list: Vec<(Texels, [Wrap; 2], Filter)>) -> TextureSet {
+    /// Textures from decoded images, in texture-index order, each usable both ways (tests,
+    /// generated scenes).
+    pub fn from_texels(list: Vec<(Texels, Filtering)>) -> TextureSet {
         TextureSet {
             textures: list
                 .into_iter()
-                .map(|(t, wrap, filter)| Some((Arc::new(t), wrap, filter)))
+                .map(|(t, filtering)| {
+                    [false, true]
+                        .map(|srgb| Some((Arc::new(Pyramid::new(t.clone(), srgb)), filtering)))
+                })
                 .collect(),
         }
     }
 
-    /// The value of texture reference `r` at texture coordinates `uv` (`uv[k]` is
-    /// `TEXCOORD_k`); `None` when the texture was not decoded.
-    pub fn sample(&self, r: &TextureRef, uv: [Vec2; 2], srgb: bool) -> Option<Vec4> {
-        let (texels, wrap, filter) = self.textures.get(r.texture)?.as_ref()?;
-        let mut st = uv[(r.tex_coord as usize).min(1)];
+    /// The value of texture reference `r` for lookup `at`; `None` when the texture was not
+    /// decoded for this use.
+    pub fn sample(&self, r: &TextureRef, at: &Lookup, srgb: bool) -> Option<Vec4> {
+        let (pyramid, filtering) = self.textures.get(r.texture)?[srgb as usize].as_ref()?;
+        let set = (r.tex_coord as usize).min(1);
+        let mut st = at.uv[set];
+        let mut log2_width = at.log2_width[set];
         if let Some(t) = &r.transform {
             st = t.apply(st);
+            // The transform's scale stretches the footprint with the coordinates.
+            log2_width += 0.5 * (t.scale[0] * t.scale[1]).abs().log2();
         }
-        Some(texels.sample(st, *wrap, *filter, srgb))
+        Some(pyramid.sample(st, log2_width, filtering, srgb))
+    }
+
+    /// Bytes the decoded textures hold, every level of every pyramid once.
+    pub fn bytes(&self) -> usize {
+        let mut seen: Vec<*const Pyramid> = Vec::new();
+        let mut sum = 0;
+        for (p, _) in self.textures.iter().flatten().flatten() {
+            let key = Arc::as_ptr(p);
+            if !seen.contains(&key) {
+                seen.push(key);
+                sum += p.bytes();
+            }
+        }
+        sum
     }
 }
 
@@ -375,6 +610,60 @@ mod tests {
         };
         assert_eq!(at(false), Vec4::new(1.0, 0.0, 0.2, 1.0));
         assert!(Texels::decode(b"not an image").is_err());
+    }
+
+    #[test]
+    fn srgb_codes_survive_the_round_trip_through_light() {
+        for c in 0..=255u8 {
+            let v = SRGB_TO_LINEAR[c as usize];
+            assert_eq!(SRGB_CODE_BOUNDS.partition_point(|&b| b <= v), c as usize);
+            assert_eq!(srgb_code(v), c);
+            for d in [-1e-7f32, 1e-7] {
+                let near = SRGB_CODE_BOUNDS[(c as usize).min(254)] + d;
+                assert_eq!(
+                    srgb_code(near) as usize,
+                    SRGB_CODE_BOUNDS.partition_point(|&b| b <= near)
+                );
+            }
+            assert_eq!((to_srgb(v) * 255.0).round() as u8, c);
+        }
+    }
+
+    #[test]
+    fn eight_bit_levels_are_the_f32_levels_rounded() {
+        // A 6 × 5 image of assorted codes, halved both ways: each 8-bit texel is the f32
+        // path's mean encoded to the nearest code.
+        let codes: Vec<[u8; 4]> = (0..30u32)
+            .map(|i| {
+                [
+                    (i * 37 % 256) as u8,
+                    (i * 91 % 256) as u8,
+                    (i * 13) as u8,
+                    200,
+                ]
+            })
+            .collect();
+        let as_f32: Vec<[f32; 4]> = codes.iter().map(|p| p.map(unit8)).collect();
+        let a = Texels {
+            width: 6,
+            height: 5,
+            texels: Store::Rgba8(codes),
+        };
+        let b = Texels::from_rgba(6, 5, as_f32).unwrap();
+        for srgb in [false, true] {
+            let (ha, hb) = (a.half(srgb).unwrap(), b.half(srgb).unwrap());
+            assert_eq!((ha.width, ha.height), (3, 2));
+            for y in 0..2 {
+                for x in 0..3 {
+                    let (va, vb) = (ha.texel(x, y, srgb), hb.texel(x, y, srgb));
+                    let step = if srgb { 0.02 } else { 0.5 / 255.0 + 1e-6 };
+                    assert!(
+                        (va - vb).abs().max_element() <= step,
+                        "{x},{y} {srgb}: {va} {vb}"
+                    );
+                }
+            }
+        }
     }
 
     #[test]
