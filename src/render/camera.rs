@@ -252,30 +252,54 @@ impl ViewCamera {
             ViewKind::Perspective { half_w, half_h } => (half_w, half_h),
             ViewKind::Orthographic { half_w, half_h } => (half_w, half_h),
         };
-        let a: [f64; N] = std::array::from_fn(|i| (2.0 * x[i] / w - 1.0) * half_w);
-        let b: [f64; N] = std::array::from_fn(|i| (1.0 - 2.0 * y[i] / h) * half_h);
+        // Plain loops over the lanes rather than `std::array::from_fn`, whose closures the
+        // compiler sometimes leaves out of line: sixteen calls per group of rays.
+        let (mut a, mut b) = ([0.0f64; N], [0.0f64; N]);
+        for i in 0..N {
+            a[i] = (2.0 * x[i] / w - 1.0) * half_w;
+            b[i] = (1.0 - 2.0 * y[i] / h) * half_h;
+        }
         // The image-plane point: a direction from the eye, or an origin beside it.
-        let along = |base: [f64; 3], i: usize| -> [f64; 3] {
-            std::array::from_fn(|k| base[k] + a[i] * self.right[k] + b[i] * self.up[k])
+        let mut p = [[0.0f64; 3]; N];
+        let base = match self.kind {
+            ViewKind::Perspective { .. } => self.forward,
+            ViewKind::Orthographic { .. } => self.eye,
         };
-        let ray = |org: [f64; 3], dir: [f64; 3]| Ray {
-            org: org.map(|v| v as f32),
-            tmin: 0.0,
-            dir: dir.map(|v| v as f32),
-            tmax: f32::INFINITY,
-        };
-        match self.kind {
-            ViewKind::Perspective { .. } => {
-                let d: [[f64; 3]; N] = std::array::from_fn(|i| along(self.forward, i));
-                let l: [f64; N] = std::array::from_fn(|i| norm(d[i]));
-                std::array::from_fn(|i| {
-                    ray(self.eye, unit_from(d[i], l[i]).unwrap_or(self.forward))
-                })
-            }
-            ViewKind::Orthographic { .. } => {
-                std::array::from_fn(|i| ray(along(self.eye, i), self.forward))
+        for i in 0..N {
+            for k in 0..3 {
+                p[i][k] = base[k] + a[i] * self.right[k] + b[i] * self.up[k];
             }
         }
+        let mut out = [Ray::EMPTY; N];
+        match self.kind {
+            ViewKind::Perspective { .. } => {
+                let mut l = [0.0f64; N];
+                for i in 0..N {
+                    l[i] = norm(p[i]);
+                }
+                for i in 0..N {
+                    let d = unit_from(p[i], l[i]).unwrap_or(self.forward);
+                    out[i] = ray(self.eye, d);
+                }
+            }
+            ViewKind::Orthographic { .. } => {
+                for i in 0..N {
+                    out[i] = ray(p[i], self.forward);
+                }
+            }
+        }
+        out
+    }
+}
+
+/// A camera ray from `org` along `dir`, rounded once to f32.
+#[inline(always)]
+fn ray(org: [f64; 3], dir: [f64; 3]) -> Ray {
+    Ray {
+        org: [org[0] as f32, org[1] as f32, org[2] as f32],
+        tmin: 0.0,
+        dir: [dir[0] as f32, dir[1] as f32, dir[2] as f32],
+        tmax: f32::INFINITY,
     }
 }
 

@@ -577,7 +577,6 @@ fn render_wave(
         surfaces,
         ..
     } = frame;
-    let w = options.width;
     let h = options.height;
     let spp = options.spp.max(1);
     let Scratch {
@@ -595,16 +594,7 @@ fn render_wave(
         .par_chunks_mut(RAYS_AT_ONCE)
         .enumerate()
         .for_each(|(k, group)| {
-            let first = start + k * RAYS_AT_ONCE;
-            let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
-            for i in 0..RAYS_AT_ONCE {
-                let p = (first + i).min(end - 1);
-                let (jx, jy) = pixel_sample(options.seed, p, s, spp);
-                x[i] = (p % w as usize) as f64 + jx;
-                y[i] = (p / w as usize) as f64 + jy;
-            }
-            let rays = camera.rays(&x, &y, w, h);
-            group.copy_from_slice(&rays[..group.len()]);
+            camera_rays(camera, options, (start + k * RAYS_AT_ONCE, end, s), group)
         });
     // Each sample's cone covers its share of the pixel: the box filter averages the
     // pixel's samples (pbrt-v4's scale of ray differentials, 1/√spp and at most 8×).
@@ -696,6 +686,29 @@ fn render_wave(
         }
         Integrator::Path => trace_paths(frame, paths, out, steps, trace, shadows, stats),
     }
+}
+
+/// The camera rays of sample `s` of the pixels from `first` on (at most `RAYS_AT_ONCE`,
+/// none past `end`) into `group`. Out of line: inlined into the pool's loop, its f64
+/// stages were compiled worse (a path frame's camera rays took a third longer).
+#[inline(never)]
+fn camera_rays(
+    camera: &ViewCamera,
+    options: &RenderOptions,
+    (first, end, s): (usize, usize, u32),
+    group: &mut [Ray],
+) {
+    let (w, h) = (options.width, options.height);
+    let spp = options.spp.max(1);
+    let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
+    for i in 0..RAYS_AT_ONCE {
+        let p = (first + i).min(end - 1);
+        let (jx, jy) = pixel_sample(options.seed, p, s, spp);
+        x[i] = (p % w as usize) as f64 + jx;
+        y[i] = (p / w as usize) as f64 + jy;
+    }
+    let rays = camera.rays(&x, &y, w, h);
+    group.copy_from_slice(&rays[..group.len()]);
 }
 
 /// A live path (its ray and hit are in [`Paths`]' lists beside it): its pixel in the wave,

@@ -486,7 +486,20 @@ impl Surfaces {
         let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
-        let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
+        // The footprint only where a texture will read it.
+        let textured = [
+            &m.base_color_texture,
+            &m.metallic_roughness_texture,
+            &m.normal_texture,
+            &m.emissive_texture,
+        ]
+        .iter()
+        .any(|r| r.is_some());
+        let uv = if textured {
+            self.lookup(tri, &at, width, ng.dot(dir).abs())
+        } else {
+            Lookup::point([Vec2::ZERO; 2])
+        };
         // The interpolated normal as stored (its own side), or the face normal.
         let smooth = at
             .vec3(&self.shading.normals)
