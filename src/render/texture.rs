@@ -441,33 +441,37 @@ impl TextureSet {
                 u[1] |= used[1];
             }
         }
-        let mut pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = Vec::with_capacity(uses.len());
-        for (image, u) in uses.iter().enumerate() {
-            if !(u[0] || u[1]) {
-                pyramids.push([None, None]);
-                continue;
-            }
-            let im = &scene.images[image];
-            let base = Texels::decode(&im.bytes).map_err(|reason| TextureError::Decode {
-                image,
-                mime: im.mime_type.clone(),
-                reason,
-            })?;
-            pyramids.push(match *u {
-                [true, true] => [
-                    Some(Arc::new(Pyramid::new(base.clone(), false))),
-                    Some(Arc::new(Pyramid::new(base, true))),
-                ],
-                [data, _] => {
-                    let p = Some(Arc::new(Pyramid::new(base, !data)));
-                    if data {
-                        [p, None]
-                    } else {
-                        [None, p]
-                    }
+        // On the pool, an image per task: decoding is serial within an image, and four
+        // 2048² JPEGs one after another were most of a textured frame's preparation.
+        let pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = uses
+            .par_iter()
+            .enumerate()
+            .map(|(image, u)| -> Result<_, TextureError> {
+                if !(u[0] || u[1]) {
+                    return Ok([None, None]);
                 }
-            });
-        }
+                let im = &scene.images[image];
+                let base = Texels::decode(&im.bytes).map_err(|reason| TextureError::Decode {
+                    image,
+                    mime: im.mime_type.clone(),
+                    reason,
+                })?;
+                Ok(match *u {
+                    [true, true] => [
+                        Some(Arc::new(Pyramid::new(base.clone(), false))),
+                        Some(Arc::new(Pyramid::new(base, true))),
+                    ],
+                    [data, _] => {
+                        let p = Some(Arc::new(Pyramid::new(base, !data)));
+                        if data {
+                            [p, None]
+                        } else {
+                            [None, p]
+                        }
+                    }
+                })
+            })
+            .collect::<Result<_, _>>()?;
         let textures = scene
             .textures
             .iter()
