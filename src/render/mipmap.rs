@@ -95,11 +95,6 @@ impl Pyramid {
         &self.levels
     }
 
-    /// Bytes of every level.
-    pub fn bytes(&self) -> usize {
-        self.levels.iter().map(Texels::bytes).sum()
-    }
-
     /// The value at `uv` for a footprint of `2^log2_width` texture-coordinate units.
     pub fn sample(&self, uv: Vec2, log2_width: f32, f: &Filtering, srgb: bool) -> Vec4 {
         let lod = log2_width + self.log2_texels_per_unit;
