@@ -362,6 +362,9 @@ impl Surfaces {
             return Lookup::point(uv);
         };
         let world = Vec3::from(tri.normal()).length();
+        if !(world > 0.0 && world.is_finite()) {
+            return Lookup::point(uv);
+        }
         let log2_across = (width / cos.max(1e-6)).log2();
         let set = |attr: &[Vec2]| -> f32 {
             let corner = |k: usize| attr.get(c[k] as usize).copied().unwrap_or_default();
