@@ -90,6 +90,11 @@ impl Pyramid {
         }
     }
 
+    /// log2 of level 0's texels per unit of texture coordinate.
+    pub fn log2_texels_per_unit(&self) -> f32 {
+        self.log2_texels_per_unit
+    }
+
     /// Its levels, level 0 first.
     pub fn levels(&self) -> &[Texels] {
         &self.levels

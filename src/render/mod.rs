@@ -6,6 +6,7 @@
 //! others lose nothing by it.
 
 pub mod brdf;
+pub mod bundle;
 pub mod camera;
 pub mod image;
 pub mod lights;

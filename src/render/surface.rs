@@ -17,9 +17,10 @@
 use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 
 use super::brdf::Bsdf;
-use super::texture::{Lookup, TextureError, TextureSet};
+use super::bundle::Bundle;
+use super::texture::{slots, Lookup, TextureError, TextureSet};
 use crate::geometry::{Hit, Triangle};
-use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading, TextureRef};
+use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading};
 
 /// A light in world space.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -384,10 +385,27 @@ impl Surfaces {
         Lookup { uv, log2_width }
     }
 
-    fn tex(&self, r: &Option<TextureRef>, at: &Lookup, srgb: bool) -> Vec4 {
-        r.as_ref()
-            .and_then(|r| self.textures.sample(r, at, srgb))
-            .unwrap_or(Vec4::ONE)
+    /// Triangle `prim`'s material's textures interleaved, when they are.
+    fn bundle(&self, prim: usize) -> Option<&Bundle> {
+        let &m = self.shading.materials.get(prim)?;
+        self.textures.bundle(m as usize)
+    }
+
+    /// Texture slot `slot` (base colour 0, emissive 3) of material `m` of triangle `prim`
+    /// at `at`, at level 0 (white without one): what alpha tests and light sampling read.
+    fn point_texel(&self, prim: usize, m: &Material, slot: usize, at: &Interp) -> Vec4 {
+        let uv = self.uvs(at);
+        let value = match self.bundle(prim) {
+            Some(b) => {
+                let set = (b.tex_coord() as usize).min(1);
+                b.sample_slot(slot, uv[set], f32::NEG_INFINITY)
+            }
+            None => slots(m)[slot].and_then(|r| {
+                self.textures
+                    .sample(&r, &Lookup::point(uv), slot == 0 || slot == 3)
+            }),
+        };
+        value.unwrap_or(Vec4::ONE)
     }
 
     /// Whether any material is not opaque; when none is, every hit stops its ray and the
@@ -417,9 +435,7 @@ impl Surfaces {
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let alpha = m.base_color_factor[3]
             * at.colour(&self.shading.colors).w
-            * self
-                .tex(&m.base_color_texture, &Lookup::point(self.uvs(&at)), true)
-                .w;
+            * self.point_texel(prim, m, 0, &at).w;
         match cutoff {
             Some(c) if alpha >= c => Presence::Opaque,
             Some(_) => Presence::Cut,
@@ -455,8 +471,7 @@ impl Surfaces {
     /// [`Surfaces::mean_emission`].
     fn emissive_texel(&self, m: &Material, prim: usize, b: [f32; 3]) -> Vec3 {
         let at = self.interp(prim, b);
-        self.tex(&m.emissive_texture, &Lookup::point(self.uvs(&at)), true)
-            .truncate()
+        self.point_texel(prim, m, 3, &at).truncate()
     }
 
     /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
@@ -489,20 +504,43 @@ impl Surfaces {
         let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
+        let refs = slots(m);
         // The footprint only where a texture will read it.
-        let textured = [
-            &m.base_color_texture,
-            &m.metallic_roughness_texture,
-            &m.normal_texture,
-            &m.emissive_texture,
-        ]
-        .iter()
-        .any(|r| r.is_some());
-        let uv = if textured {
-            self.lookup(tri, &at, width, ng.dot(dir).abs())
-        } else {
-            Lookup::point([Vec2::ZERO; 2])
+        if refs.iter().all(Option::is_none) {
+            return self.untextured(m, tri, &at, ng);
+        }
+        let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
+        // The four lookups: from the material's bundle (one record a tap) when it has one.
+        let texels = match self.bundle(prim) {
+            Some(b) => {
+                let set = (b.tex_coord() as usize).min(1);
+                b.sample(uv.uv[set], uv.log2_width[set])
+            }
+            None => {
+                let srgb = [true, false, false, true];
+                std::array::from_fn(|k| {
+                    refs[k].and_then(|r| self.textures.sample(&r, &uv, srgb[k]))
+                })
+            }
         };
+        self.shaded(m, tri, &at, ng, texels)
+    }
+
+    /// [`Surfaces::at`] for a material without textures.
+    fn untextured(&self, m: &Material, tri: &Triangle, at: &Interp, ng: Vec3) -> SurfacePoint {
+        self.shaded(m, tri, at, ng, [None; 4])
+    }
+
+    /// The surface point of material `m` at `at`, given its four textures' values there
+    /// (base colour, metallic-roughness, normal, emissive; `None` where it has none).
+    fn shaded(
+        &self,
+        m: &Material,
+        tri: &Triangle,
+        at: &Interp,
+        ng: Vec3,
+        [t_base, t_mr, t_normal, t_emissive]: [Option<Vec4>; 4],
+    ) -> SurfacePoint {
         // The interpolated normal as stored (its own side), or the face normal.
         let smooth = at
             .vec3(&self.shading.normals)
@@ -510,8 +548,8 @@ impl Surfaces {
             .unwrap_or(ng);
         let mut ns = smooth;
         if let Some(r) = &m.normal_texture {
-            if let Some(t) = self.textures.sample(r, &uv, false) {
-                if let Some(n) = self.tangent_frame(tri, &at, smooth, r.tex_coord).and_then(
+            if let Some(t) = t_normal {
+                if let Some(n) = self.tangent_frame(tri, at, smooth, r.tex_coord).and_then(
                     |(tangent, bitangent)| {
                         let s = m.normal_scale;
                         let local = Vec3::new(
@@ -531,9 +569,9 @@ impl Surfaces {
         let colour = at.colour(&self.shading.colors);
         let base = Vec3::from_slice(&m.base_color_factor[..3])
             * colour.truncate()
-            * self.tex(&m.base_color_texture, &uv, true).truncate();
+            * t_base.unwrap_or(Vec4::ONE).truncate();
         // glTF: roughness in G, metalness in B.
-        let mr = self.tex(&m.metallic_roughness_texture, &uv, false);
+        let mr = t_mr.unwrap_or(Vec4::ONE);
         let bsdf = Bsdf::new(
             base,
             m.metallic_factor * mr.z,
@@ -545,7 +583,7 @@ impl Surfaces {
             ng,
             ns,
             bsdf,
-            emission: emissive(m) * self.tex(&m.emissive_texture, &uv, true).truncate(),
+            emission: emissive(m) * t_emissive.unwrap_or(Vec4::ONE).truncate(),
         }
     }
 

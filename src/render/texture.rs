@@ -12,6 +12,7 @@ use glam::{Vec2, Vec4};
 
 use rayon::prelude::*;
 
+use super::bundle::{self, Bundle};
 use super::mipmap::{Filtering, Pyramid};
 use crate::scene::{Filter, Scene, TextureRef, Wrap};
 
@@ -159,6 +160,14 @@ impl Texels {
         self.height
     }
 
+    /// The texels, when 8-bit.
+    pub(crate) fn rgba8(&self) -> Option<&[[u8; 4]]> {
+        match &self.texels {
+            Store::Rgba8(t) => Some(t),
+            Store::RgbaF32(_) => None,
+        }
+    }
+
     /// The next MIP level: half the size on each axis (rounded down, at least 1), each
     /// texel the mean of the 2 × 2 texels it covers (the last row and column of an odd
     /// side take in the 3 left over, so that every texel counts). Colour images (`srgb`)
@@ -275,20 +284,7 @@ impl Texels {
     fn texel(&self, x: i64, y: i64, srgb: bool) -> Vec4 {
         let i = y as usize * self.width as usize + x as usize;
         match &self.texels {
-            Store::Rgba8(t) => {
-                let p = t[i];
-                if srgb {
-                    let lut = &*SRGB_TO_LINEAR;
-                    Vec4::new(
-                        lut[p[0] as usize],
-                        lut[p[1] as usize],
-                        lut[p[2] as usize],
-                        unit8(p[3]),
-                    )
-                } else {
-                    Vec4::new(unit8(p[0]), unit8(p[1]), unit8(p[2]), unit8(p[3]))
-                }
-            }
+            Store::Rgba8(t) => decode8(t[i], srgb),
             Store::RgbaF32(t) => {
                 let v = Vec4::from(t[i]);
                 if srgb {
@@ -338,6 +334,23 @@ fn encode_f32(v: Vec4, srgb: bool) -> [f32; 4] {
     }
 }
 
+/// An 8-bit texel as linear values: colour channels through the sRGB table when `srgb`,
+/// alpha (and data) as `code / 255`.
+#[inline]
+pub(crate) fn decode8(p: [u8; 4], srgb: bool) -> Vec4 {
+    if srgb {
+        let lut = &*SRGB_TO_LINEAR;
+        Vec4::new(
+            lut[p[0] as usize],
+            lut[p[1] as usize],
+            lut[p[2] as usize],
+            unit8(p[3]),
+        )
+    } else {
+        Vec4::new(unit8(p[0]), unit8(p[1]), unit8(p[2]), unit8(p[3]))
+    }
+}
+
 /// linear → sRGB (IEC 61966-2-1), the inverse of [`to_linear`].
 fn to_srgb(c: f32) -> f32 {
     if c <= 0.003_130_8 {
@@ -358,7 +371,7 @@ fn to_linear(c: f32) -> f32 {
 
 /// A texel index `i` of an axis of `n` texels, wrapped.
 #[inline]
-fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+pub(crate) fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     // Nearly every tap lies inside: no division for it.
     if (0..n).contains(&i) {
         return i;
@@ -388,6 +401,8 @@ pub struct TextureSet {
     /// Per scene texture, per use (`[data, colour]`): its pyramid (`None`: no material
     /// uses it so) and sampler.
     textures: Vec<[Option<Bound>; 2]>,
+    /// Per material, its textures interleaved where they allow it ([`Bundle`]).
+    bundles: Vec<Option<Arc<Bundle>>>,
 }
 
 /// Where a shading point's lookups read: the texture coordinates of each set and the
@@ -473,7 +488,7 @@ impl TextureSet {
             .into_iter()
             // The first failure in image order, whichever task met its own first.
             .collect::<Result<_, _>>()?;
-        let textures = scene
+        let mut textures: Vec<[Option<Bound>; 2]> = scene
             .textures
             .iter()
             .zip(used)
@@ -484,13 +499,49 @@ impl TextureSet {
                 })
             })
             .collect();
-        Ok(TextureSet { textures })
+        // Materials that read the same textures share one bundle.
+        let mut made: Vec<([Option<usize>; bundle::SLOTS], Arc<Bundle>)> = Vec::new();
+        let bundles = scene
+            .materials
+            .iter()
+            .map(|m| {
+                let refs = slots(m);
+                let key = refs.map(|r| r.map(|r| r.texture));
+                if let Some((_, b)) = made.iter().find(|(k, _)| *k == key) {
+                    return Some(Arc::clone(b));
+                }
+                let b = Arc::new(bundle_of(&textures, refs)?);
+                made.push((key, Arc::clone(&b)));
+                Some(b)
+            })
+            .collect::<Vec<_>>();
+        // A pyramid that only bundled materials read lives on in their bundles alone.
+        let mut needed = vec![[false; 2]; textures.len()];
+        for (m, b) in scene.materials.iter().zip(&bundles) {
+            if b.is_some() {
+                continue;
+            }
+            for (k, r) in slots(m).iter().enumerate() {
+                if let Some(n) = r.and_then(|r| needed.get_mut(r.texture)) {
+                    n[(k == 0 || k == 3) as usize] = true;
+                }
+            }
+        }
+        for (t, n) in textures.iter_mut().zip(needed) {
+            for k in 0..2 {
+                if !n[k] {
+                    t[k] = None;
+                }
+            }
+        }
+        Ok(TextureSet { textures, bundles })
     }
 
     /// Textures from decoded images, in texture-index order, each usable both ways (tests,
     /// generated scenes).
     pub fn from_texels(list: Vec<(Texels, Filtering)>) -> TextureSet {
         TextureSet {
+            bundles: Vec::new(),
             textures: list
                 .into_iter()
                 .map(|(t, filtering)| {
@@ -499,6 +550,11 @@ impl TextureSet {
                 })
                 .collect(),
         }
+    }
+
+    /// Material `material`'s textures interleaved, when they could be.
+    pub fn bundle(&self, material: usize) -> Option<&Bundle> {
+        self.bundles.get(material)?.as_deref()
     }
 
     /// The value of texture reference `r` for lookup `at`; `None` when the texture was not
@@ -515,6 +571,44 @@ impl TextureSet {
         }
         Some(pyramid.sample(st, log2_width, filtering, srgb))
     }
+}
+
+/// Material `m`'s texture references in [`bundle`]'s slot order: base colour,
+/// metallic-roughness, normal, emissive.
+pub fn slots(m: &crate::scene::Material) -> [Option<TextureRef>; bundle::SLOTS] {
+    [
+        m.base_color_texture,
+        m.metallic_roughness_texture,
+        m.normal_texture,
+        m.emissive_texture,
+    ]
+}
+
+/// The bundle of texture references `refs` (slot order) from `textures`: only where every
+/// one reads the same coordinate set, untransformed, through the same sampler, from
+/// pyramids of the same sizes ([`Bundle::of`] checks those).
+fn bundle_of(
+    textures: &[[Option<Bound>; 2]],
+    refs: [Option<TextureRef>; bundle::SLOTS],
+) -> Option<Bundle> {
+    let mut slots: [Option<&Pyramid>; bundle::SLOTS] = [None; bundle::SLOTS];
+    let mut shared: Option<(u32, Filtering)> = None;
+    for (s, r) in refs.iter().enumerate() {
+        let Some(r) = r else { continue };
+        if r.transform.is_some() {
+            return None;
+        }
+        let colour = s == 0 || s == 3;
+        let (p, f) = textures.get(r.texture)?[colour as usize].as_ref()?;
+        match shared {
+            None => shared = Some((r.tex_coord, *f)),
+            Some(k) if k == (r.tex_coord, *f) => {}
+            Some(_) => return None,
+        }
+        slots[s] = Some(p);
+    }
+    let (tex_coord, filtering) = shared?;
+    Bundle::of(slots, filtering, tex_coord)
 }
 
 /// A scene's textures, decoded by the first frame that needs them and shared by the rest

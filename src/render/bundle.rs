@@ -1,0 +1,255 @@
+//! A material's textures stored texel by texel together.
+//!
+//! glTF materials usually read their base colour, metallic-roughness, normal and emissive
+//! textures through one texture coordinate set, at one size and with one sampler
+//! (DamagedHelmet's four are 2048² JPEGs). Stored apart, one shading point's four lookups
+//! touch four images: four cache lines (and pages) per tap, most of them misses, and on
+//! that scene half of a path frame's shading. Interleaved, each tap is one 16-byte record
+//! holding the four texels, so a shading point reads a quarter of the lines. A bundle is
+//! built only where that holds exactly, and its lookups do the arithmetic of
+//! [`Pyramid::sample`] slot by slot, so images stay bit-identical.
+
+use glam::{Vec2, Vec4};
+
+use super::mipmap::{Filtering, Pyramid};
+use super::texture::{decode8, wrap_index};
+use crate::scene::{Filter, Mipmap};
+
+/// The slots of a bundle: base colour, metallic-roughness, normal, emissive.
+pub const SLOTS: usize = 4;
+
+/// Which slots hold colour (sRGB) textures.
+const SRGB: [bool; SLOTS] = [true, false, false, true];
+
+/// One level: four 8-bit RGBA texels per position.
+#[derive(Debug)]
+struct Level {
+    width: u32,
+    height: u32,
+    texels: Vec<[[u8; 4]; SLOTS]>,
+}
+
+/// Up to four textures of equal size, levels and sampler, interleaved.
+#[derive(Debug)]
+pub struct Bundle {
+    levels: Vec<Level>,
+    log2_texels_per_unit: f32,
+    filtering: Filtering,
+    tex_coord: u32,
+    present: [bool; SLOTS],
+}
+
+impl Bundle {
+    /// The bundle of `slots` (base colour, metallic-roughness, normal, emissive: each a
+    /// pyramid built for its slot's use, or `None`), all sampled with `filtering`: `None`
+    /// read through coordinate set `tex_coord`: `None` unless at least two are present and
+    /// they have 8-bit texels and the same levels.
+    pub fn of(
+        slots: [Option<&Pyramid>; SLOTS],
+        filtering: Filtering,
+        tex_coord: u32,
+    ) -> Option<Bundle> {
+        let present = slots.map(|p| p.is_some());
+        let first = slots.iter().flatten().next()?;
+        if present.iter().filter(|&&p| p).count() < 2 {
+            return None;
+        }
+        let count = first.levels().len();
+        let mut levels = Vec::with_capacity(count);
+        for k in 0..count {
+            let base = &first.levels()[k];
+            let (width, height) = (base.width(), base.height());
+            let mut parts: [Option<&[[u8; 4]]>; SLOTS] = [None; SLOTS];
+            for (part, p) in parts.iter_mut().zip(slots) {
+                let Some(p) = p else { continue };
+                let l = p.levels().get(k)?;
+                if (l.width(), l.height()) != (width, height) || p.levels().len() != count {
+                    return None;
+                }
+                *part = Some(l.rgba8()?);
+            }
+            let texels = (0..width as usize * height as usize)
+                .map(|i| parts.map(|part| part.map_or([0; 4], |t| t[i])))
+                .collect();
+            levels.push(Level {
+                width,
+                height,
+                texels,
+            });
+        }
+        Some(Bundle {
+            levels,
+            log2_texels_per_unit: first.log2_texels_per_unit(),
+            filtering,
+            tex_coord,
+            present,
+        })
+    }
+
+    /// The coordinate set its textures read.
+    pub fn tex_coord(&self) -> u32 {
+        self.tex_coord
+    }
+
+    /// The four textures at `uv` for a footprint of `2^log2_width` units (`None` for the
+    /// slots the bundle lacks): what [`Pyramid::sample`] of each gives, bit for bit.
+    pub fn sample(&self, uv: Vec2, log2_width: f32) -> [Option<Vec4>; SLOTS] {
+        let values = self.filtered(uv, log2_width, self.present);
+        let mut out = [None; SLOTS];
+        for s in 0..SLOTS {
+            if self.present[s] {
+                out[s] = Some(values[s]);
+            }
+        }
+        out
+    }
+
+    /// Slot `slot` alone at `uv` (alpha tests and light sampling read one texture at
+    /// level 0): the same value [`Bundle::sample`] gives it.
+    pub fn sample_slot(&self, slot: usize, uv: Vec2, log2_width: f32) -> Option<Vec4> {
+        let mut only = [false; SLOTS];
+        only[slot] = *self.present.get(slot)?;
+        only[slot].then(|| self.filtered(uv, log2_width, only)[slot])
+    }
+
+    /// The filtered values of the slots in `mask` (the others are left zero).
+    #[inline]
+    fn filtered(&self, uv: Vec2, log2_width: f32, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
+        let f = &self.filtering;
+        let lod = log2_width + self.log2_texels_per_unit;
+        if lod.is_nan() || lod <= 0.0 {
+            return self.level(0, uv, f.mag, mask);
+        }
+        let last = self.levels.len() - 1;
+        match f.mipmap {
+            Mipmap::None => self.level(0, uv, f.min, mask),
+            Mipmap::Nearest => self.level(((lod - 0.5).ceil() as usize).min(last), uv, f.min, mask),
+            Mipmap::Linear => {
+                let l = lod.floor();
+                let k = l as usize;
+                if k >= last {
+                    return self.level(last, uv, f.min, mask);
+                }
+                let t = lod - l;
+                let a = self.level(k, uv, f.min, mask);
+                let b = self.level(k + 1, uv, f.min, mask);
+                std::array::from_fn(|s| a[s] * (1.0 - t) + b[s] * t)
+            }
+        }
+    }
+
+    /// Level `k` at `uv` with `filter`, each slot in `mask` as
+    /// [`super::texture::Texels::sample`] computes it.
+    #[inline]
+    fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
+        let l = &self.levels[k];
+        let wrap = self.filtering.wrap;
+        let (w, h) = (l.width as i64, l.height as i64);
+        let texel = |x: i64, y: i64| -> [Vec4; SLOTS] {
+            let p = l.texels[y as usize * l.width as usize + x as usize];
+            std::array::from_fn(|s| {
+                if mask[s] {
+                    decode8(p[s], SRGB[s])
+                } else {
+                    Vec4::ZERO
+                }
+            })
+        };
+        let x = uv.x * w as f32 - 0.5;
+        let y = uv.y * h as f32 - 0.5;
+        if !(x.is_finite() && y.is_finite()) {
+            return texel(0, 0);
+        }
+        match filter {
+            Filter::Nearest => {
+                let (i, j) = ((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
+                texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]))
+            }
+            Filter::Linear => {
+                let (x0, y0) = (x.floor(), y.floor());
+                let (fx, fy) = (x - x0, y - y0);
+                let (i, j) = (x0 as i64, y0 as i64);
+                let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
+                let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
+                let (a, b, c, d) = (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1));
+                std::array::from_fn(|s| {
+                    let top = a[s] * (1.0 - fx) + b[s] * fx;
+                    let bottom = c[s] * (1.0 - fx) + d[s] * fx;
+                    top * (1.0 - fy) + bottom * fy
+                })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::texture::Texels;
+    use crate::scene::{Sampler, Wrap};
+
+    /// An 8-bit image of `w` × `h` assorted codes, decoded from PNG bytes as glTF images
+    /// are (so that its texels are 8-bit).
+    fn image(w: u32, h: u32, seed: u32) -> Texels {
+        let mut png = Vec::new();
+        {
+            let mut e = ::png::Encoder::new(&mut png, w, h);
+            e.set_color(::png::ColorType::Rgba);
+            let mut out = e.write_header().unwrap();
+            let data: Vec<u8> = (0..w * h * 4)
+                .map(|i| ((i * 2654435761u32.wrapping_add(seed)) >> 13) as u8)
+                .collect();
+            out.write_image_data(&data).unwrap();
+        }
+        Texels::decode(&png).unwrap()
+    }
+
+    #[test]
+    fn bundled_lookups_are_the_separate_lookups_bit_for_bit() {
+        let (w, h) = (37, 20);
+        let pyramids: Vec<Pyramid> = (0..SLOTS)
+            .map(|s| Pyramid::new(image(w, h, s as u32 * 7919), SRGB[s]))
+            .collect();
+        let samplers = [
+            Sampler::default(),
+            Sampler {
+                min_filter: Some(Filter::Nearest),
+                mipmap: Mipmap::Nearest,
+                mag_filter: Some(Filter::Nearest),
+                wrap_s: Wrap::MirroredRepeat,
+                wrap_t: Wrap::ClampToEdge,
+            },
+            Sampler {
+                min_filter: Some(Filter::Linear),
+                mipmap: Mipmap::None,
+                ..Sampler::default()
+            },
+        ];
+        for sampler in samplers {
+            let f = Filtering::of(&sampler);
+            // Without the metallic-roughness texture, as a material may be.
+            let slots = [
+                Some(&pyramids[0]),
+                None,
+                Some(&pyramids[2]),
+                Some(&pyramids[3]),
+            ];
+            let b = Bundle::of(slots, f, 0).unwrap();
+            for i in 0..400 {
+                let uv = Vec2::new(i as f32 * 0.0173 - 1.3, (i * 7 % 97) as f32 * 0.031 - 0.8);
+                let log2_width = (i % 23) as f32 * 0.5 - 9.0;
+                let got = b.sample(uv, log2_width);
+                for s in 0..SLOTS {
+                    let want = slots[s].map(|p| p.sample(uv, log2_width, &f, SRGB[s]));
+                    assert_eq!(got[s], want, "{sampler:?} slot {s} at {uv} {log2_width}");
+                    assert_eq!(b.sample_slot(s, uv, log2_width), want);
+                }
+            }
+        }
+        // Textures of different sizes, or a lone texture, make no bundle.
+        let other = Pyramid::new(image(w + 1, h, 1), false);
+        let f = Filtering::of(&Sampler::default());
+        assert!(Bundle::of([Some(&pyramids[0]), Some(&other), None, None], f, 0).is_none());
+        assert!(Bundle::of([Some(&pyramids[0]), None, None, None], f, 0).is_none());
+    }
+}
