@@ -671,6 +671,7 @@ pub fn offset_ray(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::TextureRef;
 
     #[test]
     fn offset_moves_to_the_normal_side_at_every_scale() {
