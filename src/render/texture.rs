@@ -499,19 +499,30 @@ impl TextureSet {
                 })
             })
             .collect();
-        // Materials that read the same textures share one bundle.
-        let mut made: Vec<([Option<usize>; bundle::SLOTS], Arc<Bundle>)> = Vec::new();
+        // Materials that read the same textures the same way share one bundle; a texture
+        // goes into one bundle at most (a second material that mixes it with others reads
+        // its textures apart instead of copying it), and a bundle takes three textures or
+        // more (its records hold four; with two, half of it would be padding).
+        let mut made: Vec<([Option<TextureRef>; bundle::SLOTS], Arc<Bundle>)> = Vec::new();
         let bundles = scene
             .materials
             .iter()
             .map(|m| {
                 let refs = slots(m);
-                let key = refs.map(|r| r.map(|r| r.texture));
-                if let Some((_, b)) = made.iter().find(|(k, _)| *k == key) {
+                if let Some((_, b)) = made.iter().find(|(k, _)| *k == refs) {
                     return Some(Arc::clone(b));
                 }
+                let taken = |t: usize| {
+                    made.iter()
+                        .any(|(k, _)| k.iter().flatten().any(|r| r.texture == t))
+                };
+                if refs.iter().flatten().count() < 3
+                    || refs.iter().flatten().any(|r| taken(r.texture))
+                {
+                    return None;
+                }
                 let b = Arc::new(bundle_of(&textures, refs)?);
-                made.push((key, Arc::clone(&b)));
+                made.push((refs, Arc::clone(&b)));
                 Some(b)
             })
             .collect::<Vec<_>>();
@@ -695,6 +706,79 @@ mod tests {
         };
         assert_eq!(at(false), Vec4::new(1.0, 0.0, 0.2, 1.0));
         assert!(Texels::decode(b"not an image").is_err());
+    }
+
+    /// A 4 × 4 PNG of assorted codes.
+    fn png(seed: u8) -> Vec<u8> {
+        let mut png = Vec::new();
+        {
+            let mut e = ::png::Encoder::new(&mut png, 4, 4);
+            e.set_color(::png::ColorType::Rgba);
+            let mut w = e.write_header().unwrap();
+            let data: Vec<u8> = (0..64u8)
+                .map(|i| i.wrapping_mul(37).wrapping_add(seed))
+                .collect();
+            w.write_image_data(&data).unwrap();
+        }
+        png
+    }
+
+    #[test]
+    fn materials_share_a_bundle_only_when_they_read_alike() {
+        use crate::scene::{Image, Material, Texture, TextureTransform};
+        let r = |texture, tex_coord, transform| {
+            Some(TextureRef {
+                texture,
+                tex_coord,
+                transform,
+            })
+        };
+        let material = |tex_coord, transform: Option<TextureTransform>| Material {
+            base_color_texture: r(0, tex_coord, transform),
+            metallic_roughness_texture: r(1, tex_coord, transform),
+            normal_texture: r(2, tex_coord, transform),
+            ..Material::default()
+        };
+        let tiled = TextureTransform {
+            offset: [0.0; 2],
+            rotation: 0.0,
+            scale: [4.0, 4.0],
+        };
+        let scene = Scene {
+            images: (0..3)
+                .map(|i| Image {
+                    mime_type: "image/png".into(),
+                    bytes: png(i * 50).into(),
+                })
+                .collect(),
+            textures: (0..3)
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials: vec![
+                material(0, None),
+                material(1, None),
+                material(0, Some(tiled)),
+            ],
+            ..Scene::default()
+        };
+        let set = TextureSet::of(&scene).unwrap();
+        assert!(set.bundle(0).is_some());
+        // The same textures through another coordinate set, or transformed: read apart,
+        // from pyramids that stay.
+        assert!(set.bundle(1).is_none() && set.bundle(2).is_none());
+        let at = Lookup {
+            uv: [Vec2::new(0.3, 0.6), Vec2::new(0.8, 0.1)],
+            log2_width: [-4.0, -1.5],
+        };
+        for (k, srgb) in [(0, true), (1, false), (2, false)] {
+            let direct = set.sample(&r(k, 0, None).unwrap(), &at, srgb).unwrap();
+            let via = set.bundle(0).unwrap().sample(at.uv[0], at.log2_width[0])[k].unwrap();
+            assert_eq!(direct, via);
+            assert!(set.sample(&r(k, 1, None).unwrap(), &at, srgb).is_some());
+        }
     }
 
     #[test]
