@@ -11,15 +11,13 @@
 
 use glam::{Vec2, Vec4};
 
-use super::mipmap::{Filtering, Pyramid};
-use super::texture::{decode8, wrap_index};
-use crate::scene::{Filter, Mipmap};
+use super::mipmap::{across_levels, Filtering, Pyramid};
+use super::texture::{decode8, filter_level, SLOTS, SLOT_IS_COLOUR};
+use crate::scene::Filter;
 
-/// The slots of a bundle: base colour, metallic-roughness, normal, emissive.
-pub const SLOTS: usize = 4;
-
-/// Which slots hold colour (sRGB) textures.
-const SRGB: [bool; SLOTS] = [true, false, false, true];
+/// Fewest textures a bundle takes: its records hold four, so with three at most a quarter
+/// of it is padding (with two, half would be).
+pub const MIN_SLOTS: usize = 3;
 
 /// One level: four 8-bit RGBA texels per position.
 #[derive(Debug)]
@@ -41,9 +39,9 @@ pub struct Bundle {
 
 impl Bundle {
     /// The bundle of `slots` (base colour, metallic-roughness, normal, emissive: each a
-    /// pyramid built for its slot's use, or `None`), all sampled with `filtering`: `None`
-    /// read through coordinate set `tex_coord`: `None` unless at least two are present and
-    /// they have 8-bit texels and the same levels.
+    /// pyramid built for its slot's use, or `None`), all sampled with `filtering` and read
+    /// through coordinate set `tex_coord`: `None` unless at least [`MIN_SLOTS`] are present
+    /// and they have 8-bit texels and the same levels.
     pub fn of(
         slots: [Option<&Pyramid>; SLOTS],
         filtering: Filtering,
@@ -51,7 +49,7 @@ impl Bundle {
     ) -> Option<Bundle> {
         let present = slots.map(|p| p.is_some());
         let first = slots.iter().flatten().next()?;
-        if present.iter().filter(|&&p| p).count() < 2 {
+        if present.iter().filter(|&&p| p).count() < MIN_SLOTS {
             return None;
         }
         let count = first.levels().len();
@@ -115,27 +113,10 @@ impl Bundle {
     /// The filtered values of the slots in `mask` (the others are left zero).
     #[inline]
     fn filtered(&self, uv: Vec2, log2_width: f32, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
-        let f = &self.filtering;
         let lod = log2_width + self.log2_texels_per_unit;
-        if lod.is_nan() || lod <= 0.0 {
-            return self.level(0, uv, f.mag, mask);
-        }
-        let last = self.levels.len() - 1;
-        match f.mipmap {
-            Mipmap::None => self.level(0, uv, f.min, mask),
-            Mipmap::Nearest => self.level(((lod - 0.5).ceil() as usize).min(last), uv, f.min, mask),
-            Mipmap::Linear => {
-                let l = lod.floor();
-                let k = l as usize;
-                if k >= last {
-                    return self.level(last, uv, f.min, mask);
-                }
-                let t = lod - l;
-                let a = self.level(k, uv, f.min, mask);
-                let b = self.level(k + 1, uv, f.min, mask);
-                std::array::from_fn(|s| a[s] * (1.0 - t) + b[s] * t)
-            }
-        }
+        across_levels(lod, &self.filtering, self.levels.len() - 1, |k, filter| {
+            self.level(k, uv, filter, mask)
+        })
     }
 
     /// Level `k` at `uv` with `filter`, each slot in `mask` as
@@ -143,42 +124,22 @@ impl Bundle {
     #[inline]
     fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
         let l = &self.levels[k];
-        let wrap = self.filtering.wrap;
-        let (w, h) = (l.width as i64, l.height as i64);
-        let texel = |x: i64, y: i64| -> [Vec4; SLOTS] {
-            let p = l.texels[y as usize * l.width as usize + x as usize];
-            std::array::from_fn(|s| {
-                if mask[s] {
-                    decode8(p[s], SRGB[s])
-                } else {
-                    Vec4::ZERO
-                }
-            })
-        };
-        let x = uv.x * w as f32 - 0.5;
-        let y = uv.y * h as f32 - 0.5;
-        if !(x.is_finite() && y.is_finite()) {
-            return texel(0, 0);
-        }
-        match filter {
-            Filter::Nearest => {
-                let (i, j) = ((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
-                texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]))
-            }
-            Filter::Linear => {
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = (x - x0, y - y0);
-                let (i, j) = (x0 as i64, y0 as i64);
-                let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
-                let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
-                let (a, b, c, d) = (texel(i0, j0), texel(i1, j0), texel(i0, j1), texel(i1, j1));
+        filter_level(
+            uv,
+            (l.width, l.height),
+            self.filtering.wrap,
+            filter,
+            |x, y| {
+                let p = l.texels[y as usize * l.width as usize + x as usize];
                 std::array::from_fn(|s| {
-                    let top = a[s] * (1.0 - fx) + b[s] * fx;
-                    let bottom = c[s] * (1.0 - fx) + d[s] * fx;
-                    top * (1.0 - fy) + bottom * fy
+                    if mask[s] {
+                        decode8(p[s], SLOT_IS_COLOUR[s])
+                    } else {
+                        Vec4::ZERO
+                    }
                 })
-            }
-        }
+            },
+        )
     }
 }
 
@@ -186,7 +147,7 @@ impl Bundle {
 mod tests {
     use super::*;
     use crate::render::texture::Texels;
-    use crate::scene::{Sampler, Wrap};
+    use crate::scene::{Mipmap, Sampler, Wrap};
 
     /// An 8-bit image of `w` × `h` assorted codes, decoded from PNG bytes as glTF images
     /// are (so that its texels are 8-bit).
@@ -208,7 +169,7 @@ mod tests {
     fn bundled_lookups_are_the_separate_lookups_bit_for_bit() {
         let (w, h) = (37, 20);
         let pyramids: Vec<Pyramid> = (0..SLOTS)
-            .map(|s| Pyramid::new(image(w, h, s as u32 * 7919), SRGB[s]))
+            .map(|s| Pyramid::new(image(w, h, s as u32 * 7919), SLOT_IS_COLOUR[s]))
             .collect();
         let samplers = [
             Sampler::default(),
@@ -240,7 +201,7 @@ mod tests {
                 let log2_width = (i % 23) as f32 * 0.5 - 9.0;
                 let got = b.sample(uv, log2_width);
                 for s in 0..SLOTS {
-                    let want = slots[s].map(|p| p.sample(uv, log2_width, &f, SRGB[s]));
+                    let want = slots[s].map(|p| p.sample(uv, log2_width, &f, SLOT_IS_COLOUR[s]));
                     assert_eq!(got[s], want, "{sampler:?} slot {s} at {uv} {log2_width}");
                     assert_eq!(b.sample_slot(s, uv, log2_width), want);
                 }

@@ -20,7 +20,7 @@
 
 use glam::{Vec2, Vec4};
 
-use super::texture::Texels;
+use super::texture::{Blend, Texels};
 use crate::scene::{Filter, Mipmap, Sampler, Wrap};
 
 /// How a texture is filtered: a glTF sampler, its absent filters made definite.
@@ -103,24 +103,36 @@ impl Pyramid {
     /// The value at `uv` for a footprint of `2^log2_width` texture-coordinate units.
     pub fn sample(&self, uv: Vec2, log2_width: f32, f: &Filtering, srgb: bool) -> Vec4 {
         let lod = log2_width + self.log2_texels_per_unit;
-        // NaN (an undefined footprint) is no footprint: level 0, magnified.
-        if lod.is_nan() || lod <= 0.0 {
-            return self.levels[0].sample(uv, f.wrap, f.mag, srgb);
-        }
-        let last = self.levels.len() - 1;
-        let at = |level: usize| self.levels[level].sample(uv, f.wrap, f.min, srgb);
-        match f.mipmap {
-            Mipmap::None => at(0),
-            Mipmap::Nearest => at(((lod - 0.5).ceil() as usize).min(last)),
-            Mipmap::Linear => {
-                let l = lod.floor();
-                let k = l as usize;
-                if k >= last {
-                    return at(last);
-                }
-                let t = lod - l;
-                at(k) * (1.0 - t) + at(k + 1) * t
+        across_levels(lod, f, self.levels.len() - 1, |k, filter| {
+            self.levels[k].sample(uv, f.wrap, filter, srgb)
+        })
+    }
+}
+
+/// What a lookup at level of detail `lod` reads of levels `0..=last`, `level(k, filter)`
+/// being level `k` filtered with `filter`: level 0 magnified when the footprint is at most
+/// a texel (or undefined: NaN), otherwise as `f.mipmap` says: level 0, the nearest level,
+/// or the blend of the two around `lod`.
+#[inline(always)]
+pub(crate) fn across_levels<T: Blend>(
+    lod: f32,
+    f: &Filtering,
+    last: usize,
+    level: impl Fn(usize, Filter) -> T,
+) -> T {
+    if lod.is_nan() || lod <= 0.0 {
+        return level(0, f.mag);
+    }
+    match f.mipmap {
+        Mipmap::None => level(0, f.min),
+        Mipmap::Nearest => level(((lod - 0.5).ceil() as usize).min(last), f.min),
+        Mipmap::Linear => {
+            let l = lod.floor();
+            let k = l as usize;
+            if k >= last {
+                return level(last, f.min);
             }
+            level(k, f.min).blend(level(k + 1, f.min), lod - l)
         }
     }
 }

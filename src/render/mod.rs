@@ -690,8 +690,8 @@ fn render_wave(
 }
 
 /// The camera rays of sample `s` of the pixels from `first` on (at most `RAYS_AT_ONCE`,
-/// none past `end`) into `group`. Out of line: inlined into the pool's loop, its f64
-/// stages were compiled worse (a path frame's camera rays took a third longer).
+/// none past `end`) into `group`. Out of line, so that how the camera's f64 stages compile
+/// does not depend on what the pool's loop inlines around them.
 #[inline(never)]
 fn camera_rays(
     camera: &ViewCamera,

@@ -18,7 +18,7 @@ use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 
 use super::brdf::Bsdf;
 use super::bundle::Bundle;
-use super::texture::{slots, Lookup, TextureError, TextureSet};
+use super::texture::{slots, Lookup, TextureError, TextureSet, SLOT_IS_COLOUR};
 use crate::geometry::{Hit, Triangle};
 use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading};
 
@@ -395,15 +395,15 @@ impl Surfaces {
     /// at `at`, at level 0 (white without one): what alpha tests and light sampling read.
     fn point_texel(&self, prim: usize, m: &Material, slot: usize, at: &Interp) -> Vec4 {
         let uv = self.uvs(at);
+        let at = Lookup::point(uv);
         let value = match self.bundle(prim) {
             Some(b) => {
-                let set = (b.tex_coord() as usize).min(1);
-                b.sample_slot(slot, uv[set], f32::NEG_INFINITY)
+                let (uv, log2_width) = at.set(b.tex_coord());
+                b.sample_slot(slot, uv, log2_width)
             }
-            None => slots(m)[slot].and_then(|r| {
-                self.textures
-                    .sample(&r, &Lookup::point(uv), slot == 0 || slot == 3)
-            }),
+            None => {
+                slots(m)[slot].and_then(|r| self.textures.sample(&r, &at, SLOT_IS_COLOUR[slot]))
+            }
         };
         value.unwrap_or(Vec4::ONE)
     }
@@ -513,23 +513,20 @@ impl Surfaces {
         // The four lookups: from the material's bundle (one record a tap) when it has one.
         let texels = match self.bundle(prim) {
             Some(b) => {
-                let set = (b.tex_coord() as usize).min(1);
-                b.sample(uv.uv[set], uv.log2_width[set])
+                let (uv, log2_width) = uv.set(b.tex_coord());
+                b.sample(uv, log2_width)
             }
-            None => {
-                let srgb = [true, false, false, true];
-                std::array::from_fn(|k| {
-                    refs[k].and_then(|r| self.textures.sample(&r, &uv, srgb[k]))
-                })
-            }
+            None => std::array::from_fn(|k| {
+                refs[k].and_then(|r| self.textures.sample(&r, &uv, SLOT_IS_COLOUR[k]))
+            }),
         };
         self.shaded(m, tri, &at, ng, texels)
     }
 
     /// The surface point of material `m` at `at`, given its four textures' values there
     /// (base colour, metallic-roughness, normal, emissive; `None` where it has none).
-    /// Inlined into both of [`Surfaces::at`]'s paths: a call here cost untextured scenes
-    /// a few percent of their shading.
+    /// Inlined into both of [`Surfaces::at`]'s paths, so that untextured shading pays no
+    /// call for the split.
     #[inline(always)]
     fn shaded(
         &self,

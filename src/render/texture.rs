@@ -12,7 +12,7 @@ use glam::{Vec2, Vec4};
 
 use rayon::prelude::*;
 
-use super::bundle::{self, Bundle};
+use super::bundle::Bundle;
 use super::mipmap::{Filtering, Pyramid};
 use crate::scene::{Filter, Scene, TextureRef, Wrap};
 
@@ -183,21 +183,10 @@ impl Texels {
             let hi = if i + 1 == m { n } else { 2 * i + 2 };
             lo as i64..hi as i64
         };
-        let mean = |i: u32, j: u32| -> Vec4 {
-            let (xs, ys) = (span(i, self.width, w), span(j, self.height, h));
-            let mut sum = Vec4::ZERO;
-            for y in ys.clone() {
-                for x in xs.clone() {
-                    sum += self.texel(x, y, srgb);
-                }
-            }
-            sum / ((xs.end - xs.start) * (ys.end - ys.start)) as f32
-        };
         let texels = match &self.texels {
             // 8-bit images (nearly all): their own loop, through the sRGB tables, since a
             // 2048² image's levels are 1.4M texels each averaging four.
             Store::Rgba8(src) => {
-                let lut = &*SRGB_TO_LINEAR;
                 let sw = self.width as usize;
                 let mut out = vec![[0u8; 4]; w as usize * h as usize];
                 // Columns (and rows) whose texel averages exactly two: all but the last of
@@ -219,48 +208,32 @@ impl Texels {
                             let r1 = &src[(2 * j + 1) * sw..][..2 * pair_cols];
                             let quads = r0.chunks_exact(2).zip(r1.chunks_exact(2));
                             for (t, (a, b)) in row[..pair_cols].iter_mut().zip(quads) {
-                                let q = [a[0], a[1], b[0], b[1]];
-                                *t = std::array::from_fn(|c| {
-                                    let sum: u32 = q.iter().map(|p| u32::from(p[c])).sum();
-                                    ((sum + 2) >> 2) as u8
-                                });
-                                if srgb {
-                                    for c in 0..3 {
-                                        let light: f32 = q.iter().map(|p| lut[p[c] as usize]).sum();
-                                        t[c] = srgb_code(light * 0.25);
-                                    }
-                                }
+                                *t = average8([a[0], a[1], b[0], b[1]], 4, srgb);
                             }
                             rest = pair_cols;
                         }
                         for (i, t) in row.iter_mut().enumerate().skip(rest) {
                             let xs = span(i as u32, self.width, w);
                             let n = ((xs.end - xs.start) * (ys.end - ys.start)) as u32;
-                            let (mut light, mut code) = ([0f32; 3], [0u32; 4]);
-                            for y in ys.clone() {
-                                for x in xs.clone() {
-                                    let p = src[y as usize * sw + x as usize];
-                                    for c in 0..4 {
-                                        code[c] += u32::from(p[c]);
-                                    }
-                                    for c in 0..3 {
-                                        light[c] += lut[p[c] as usize];
-                                    }
-                                }
-                            }
-                            // The nearest code to the mean: of the light for colour, of
-                            // the codes for data and alpha.
-                            *t = code.map(|k| ((k + n / 2) / n) as u8);
-                            if srgb {
-                                for c in 0..3 {
-                                    t[c] = srgb_code(light[c] / n as f32);
-                                }
-                            }
+                            let block = ys.clone().flat_map(|y| {
+                                xs.clone().map(move |x| src[y as usize * sw + x as usize])
+                            });
+                            *t = average8(block, n, srgb);
                         }
                     });
                 Store::Rgba8(out)
             }
             Store::RgbaF32(_) => {
+                let mean = |i: u32, j: u32| -> Vec4 {
+                    let (xs, ys) = (span(i, self.width, w), span(j, self.height, h));
+                    let mut sum = Vec4::ZERO;
+                    for y in ys.clone() {
+                        for x in xs.clone() {
+                            sum += self.texel(x, y, srgb);
+                        }
+                    }
+                    sum / ((xs.end - xs.start) * (ys.end - ys.start)) as f32
+                };
                 let mut out = vec![[0f32; 4]; w as usize * h as usize];
                 out.par_chunks_mut(w as usize)
                     .enumerate()
@@ -299,30 +272,93 @@ impl Texels {
     /// The value at texture coordinate `uv` (glTF's: (0, 0) is the image's top-left
     /// corner).
     pub fn sample(&self, uv: Vec2, wrap: [Wrap; 2], filter: Filter, srgb: bool) -> Vec4 {
-        let (w, h) = (self.width as i64, self.height as i64);
-        let x = uv.x * w as f32 - 0.5;
-        let y = uv.y * h as f32 - 0.5;
-        if !(x.is_finite() && y.is_finite()) {
-            return self.texel(0, 0, srgb);
+        filter_level(uv, (self.width, self.height), wrap, filter, |x, y| {
+            self.texel(x, y, srgb)
+        })
+    }
+}
+
+/// Linear interpolation `a (1 − t) + b t` of filtered values, in this one order of
+/// operations, so that a texture read alone ([`Texels::sample`]) and the same texture read
+/// in a bundle ([`super::bundle::Bundle`]) give the same bits. (glam's own `lerp` rounds
+/// differently.)
+pub(crate) trait Blend: Copy {
+    fn blend(self, b: Self, t: f32) -> Self;
+}
+
+impl Blend for Vec4 {
+    #[inline(always)]
+    fn blend(self, b: Vec4, t: f32) -> Vec4 {
+        self * (1.0 - t) + b * t
+    }
+}
+
+impl<const N: usize> Blend for [Vec4; N] {
+    #[inline(always)]
+    fn blend(self, b: [Vec4; N], t: f32) -> [Vec4; N] {
+        std::array::from_fn(|s| self[s].blend(b[s], t))
+    }
+}
+
+/// The value at texture coordinate `uv` (glTF's: (0, 0) is the image's top-left corner) of
+/// a level of `size` texels whose texel `(x, y)` (in range) is `texel(x, y)`: the nearest
+/// texel or the bilinear blend of four, each axis wrapped by its mode.
+#[inline(always)]
+pub(crate) fn filter_level<T: Blend>(
+    uv: Vec2,
+    size: (u32, u32),
+    wrap: [Wrap; 2],
+    filter: Filter,
+    texel: impl Fn(i64, i64) -> T,
+) -> T {
+    let (w, h) = (size.0 as i64, size.1 as i64);
+    let x = uv.x * w as f32 - 0.5;
+    let y = uv.y * h as f32 - 0.5;
+    if !(x.is_finite() && y.is_finite()) {
+        return texel(0, 0);
+    }
+    match filter {
+        Filter::Nearest => {
+            let (i, j) = ((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
+            texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]))
         }
-        match filter {
-            Filter::Nearest => {
-                let (i, j) = ((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
-                self.texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]), srgb)
-            }
-            Filter::Linear => {
-                let (x0, y0) = (x.floor(), y.floor());
-                let (fx, fy) = (x - x0, y - y0);
-                let (i, j) = (x0 as i64, y0 as i64);
-                // Each axis wrapped once for both of its taps.
-                let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
-                let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
-                let top = self.texel(i0, j0, srgb) * (1.0 - fx) + self.texel(i1, j0, srgb) * fx;
-                let bottom = self.texel(i0, j1, srgb) * (1.0 - fx) + self.texel(i1, j1, srgb) * fx;
-                top * (1.0 - fy) + bottom * fy
+        Filter::Linear => {
+            let (x0, y0) = (x.floor(), y.floor());
+            let (fx, fy) = (x - x0, y - y0);
+            let (i, j) = (x0 as i64, y0 as i64);
+            // Each axis wrapped once for both of its taps.
+            let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
+            let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
+            let top = texel(i0, j0).blend(texel(i1, j0), fx);
+            let bottom = texel(i0, j1).blend(texel(i1, j1), fx);
+            top.blend(bottom, fy)
+        }
+    }
+}
+
+/// The 8-bit texel of a MIP level over the `n` texels of `block`: the nearest code to
+/// their mean, of the light for colour channels (`srgb`), of the codes for data and alpha.
+#[inline(always)]
+fn average8(block: impl IntoIterator<Item = [u8; 4]>, n: u32, srgb: bool) -> [u8; 4] {
+    let lut = &*SRGB_TO_LINEAR;
+    let (mut light, mut code) = ([0f32; 3], [0u32; 4]);
+    for p in block {
+        for c in 0..4 {
+            code[c] += u32::from(p[c]);
+        }
+        if srgb {
+            for c in 0..3 {
+                light[c] += lut[p[c] as usize];
             }
         }
     }
+    let mut t = code.map(|k| ((k + n / 2) / n) as u8);
+    if srgb {
+        for c in 0..3 {
+            t[c] = srgb_code(light[c] / n as f32);
+        }
+    }
+    t
 }
 
 /// A linear value as the f32 texel a level stores (sRGB-encoded colour when `srgb`).
@@ -371,7 +407,7 @@ fn to_linear(c: f32) -> f32 {
 
 /// A texel index `i` of an axis of `n` texels, wrapped.
 #[inline]
-pub(crate) fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     // Nearly every tap lies inside: no division for it.
     if (0..n).contains(&i) {
         return i;
@@ -417,6 +453,13 @@ pub struct Lookup {
 }
 
 impl Lookup {
+    /// The coordinates and footprint in coordinate set `tex_coord` (a set past the last is
+    /// the last).
+    pub fn set(&self, tex_coord: u32) -> (Vec2, f32) {
+        let k = (tex_coord as usize).min(1);
+        (self.uv[k], self.log2_width[k])
+    }
+
     /// A lookup of one point (no footprint): level 0, as light sampling and alpha tests
     /// read.
     pub fn point(uv: [Vec2; 2]) -> Lookup {
@@ -434,15 +477,9 @@ impl TextureSet {
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
         let mut used = vec![[false; 2]; scene.textures.len()];
         for m in &scene.materials {
-            let uses = [
-                (m.base_color_texture, true),
-                (m.metallic_roughness_texture, false),
-                (m.normal_texture, false),
-                (m.emissive_texture, true),
-            ];
-            for (r, srgb) in uses {
+            for (r, colour) in slots(m).into_iter().zip(SLOT_IS_COLOUR) {
                 if let Some(u) = r.and_then(|r| used.get_mut(r.texture)) {
-                    u[srgb as usize] = true;
+                    u[colour as usize] = true;
                 }
             }
         }
@@ -499,11 +536,10 @@ impl TextureSet {
                 })
             })
             .collect();
-        // Materials that read the same textures the same way share one bundle; a texture
-        // goes into one bundle at most (a second material that mixes it with others reads
-        // its textures apart instead of copying it), and a bundle takes three textures or
-        // more (its records hold four; with two, half of it would be padding).
-        let mut made: Vec<([Option<TextureRef>; bundle::SLOTS], Arc<Bundle>)> = Vec::new();
+        // Materials that read the same textures the same way share one bundle, and a
+        // texture goes into one bundle at most (a second material that mixes it with
+        // others reads its textures apart instead of copying it).
+        let mut made: Vec<([Option<TextureRef>; SLOTS], Arc<Bundle>)> = Vec::new();
         let bundles = scene
             .materials
             .iter()
@@ -516,9 +552,7 @@ impl TextureSet {
                     made.iter()
                         .any(|(k, _)| k.iter().flatten().any(|r| r.texture == t))
                 };
-                if refs.iter().flatten().count() < 3
-                    || refs.iter().flatten().any(|r| taken(r.texture))
-                {
+                if refs.iter().flatten().any(|r| taken(r.texture)) {
                     return None;
                 }
                 let b = Arc::new(bundle_of(&textures, refs)?);
@@ -532,9 +566,9 @@ impl TextureSet {
             if b.is_some() {
                 continue;
             }
-            for (k, r) in slots(m).iter().enumerate() {
+            for (r, colour) in slots(m).into_iter().zip(SLOT_IS_COLOUR) {
                 if let Some(n) = r.and_then(|r| needed.get_mut(r.texture)) {
-                    n[(k == 0 || k == 3) as usize] = true;
+                    n[colour as usize] = true;
                 }
             }
         }
@@ -572,9 +606,7 @@ impl TextureSet {
     /// decoded for this use.
     pub fn sample(&self, r: &TextureRef, at: &Lookup, srgb: bool) -> Option<Vec4> {
         let (pyramid, filtering) = self.textures.get(r.texture)?[srgb as usize].as_ref()?;
-        let set = (r.tex_coord as usize).min(1);
-        let mut st = at.uv[set];
-        let mut log2_width = at.log2_width[set];
+        let (mut st, mut log2_width) = at.set(r.tex_coord);
         if let Some(t) = &r.transform {
             st = t.apply(st);
             // The transform's scale stretches the footprint with the coordinates.
@@ -584,9 +616,15 @@ impl TextureSet {
     }
 }
 
-/// Material `m`'s texture references in [`bundle`]'s slot order: base colour,
-/// metallic-roughness, normal, emissive.
-pub fn slots(m: &crate::scene::Material) -> [Option<TextureRef>; bundle::SLOTS] {
+/// The texture slots of a material this renderer reads.
+pub const SLOTS: usize = 4;
+
+/// Which slots hold colour (sRGB) textures: base colour and emissive.
+pub const SLOT_IS_COLOUR: [bool; SLOTS] = [true, false, false, true];
+
+/// Material `m`'s texture references in slot order: base colour, metallic-roughness,
+/// normal, emissive.
+pub fn slots(m: &crate::scene::Material) -> [Option<TextureRef>; SLOTS] {
     [
         m.base_color_texture,
         m.metallic_roughness_texture,
@@ -598,19 +636,15 @@ pub fn slots(m: &crate::scene::Material) -> [Option<TextureRef>; bundle::SLOTS] 
 /// The bundle of texture references `refs` (slot order) from `textures`: only where every
 /// one reads the same coordinate set, untransformed, through the same sampler, from
 /// pyramids of the same sizes ([`Bundle::of`] checks those).
-fn bundle_of(
-    textures: &[[Option<Bound>; 2]],
-    refs: [Option<TextureRef>; bundle::SLOTS],
-) -> Option<Bundle> {
-    let mut slots: [Option<&Pyramid>; bundle::SLOTS] = [None; bundle::SLOTS];
+fn bundle_of(textures: &[[Option<Bound>; 2]], refs: [Option<TextureRef>; SLOTS]) -> Option<Bundle> {
+    let mut slots: [Option<&Pyramid>; SLOTS] = [None; SLOTS];
     let mut shared: Option<(u32, Filtering)> = None;
     for (s, r) in refs.iter().enumerate() {
         let Some(r) = r else { continue };
         if r.transform.is_some() {
             return None;
         }
-        let colour = s == 0 || s == 3;
-        let (p, f) = textures.get(r.texture)?[colour as usize].as_ref()?;
+        let (p, f) = textures.get(r.texture)?[SLOT_IS_COLOUR[s] as usize].as_ref()?;
         match shared {
             None => shared = Some((r.tex_coord, *f)),
             Some(k) if k == (r.tex_coord, *f) => {}

@@ -38,13 +38,13 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 import rayd
 from rayd import formats
+from timing import median as timed
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -96,16 +96,6 @@ def free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
-
-
-def timed(fn, runs):
-    """Median seconds of ``runs`` calls and the last result."""
-    times, out = [], None
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def main():

@@ -7,22 +7,12 @@ origin and direction rows. Median of `--runs`, ms.
     python3 clients/python/bench/encode_layouts.py [--rays 786432] [--runs 7]
 """
 import argparse
-import statistics
-import time
 
 import numpy as np
 from rayd import formats
+from timing import median_ms as timed
 
 SEGMENT = formats.SEGMENT
-
-
-def timed(fn, runs):
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e3
 
 
 def main():

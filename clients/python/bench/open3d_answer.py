@@ -7,13 +7,12 @@
     python3 clients/python/bench/open3d_answer.py [--rays 786432] [--triangles 100012]
 """
 import argparse
-import statistics
-import time
 
 import numpy as np
 
 from rayd import formats
 from rayd.client import open3d_answer
+from timing import median_ms as timed
 
 MISS = formats.MISS_PRIM
 
@@ -30,15 +29,6 @@ def replaced(records, normals):
         "primitive_uvs": np.stack([records["u"], records["v"]], axis=-1),
         "primitive_normals": gathered,
     }
-
-
-def timed(fn, runs):
-    times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times) * 1e3
 
 
 def main():
