@@ -90,13 +90,13 @@ fn render_case(case: &Case) -> Vec<u8> {
     let o = &case.options;
     let camera =
         ViewCamera::choose(&case.camera, &scene, o.width as f64 / o.height as f64).unwrap();
-    let diagonal = scene.bounds().map(|b| b.diagonal()).unwrap_or(1.0);
+    let bounds = scene.bounds();
     let (img, _) = render(
         &scene.triangles,
         accel.as_ref(),
         &camera,
         o,
-        diagonal,
+        bounds.as_ref(),
         Some(&surfaces),
         &ALL_AT_ONCE,
     )

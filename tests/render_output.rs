@@ -50,8 +50,7 @@ fn render_on(
     let bounds = rayd::scene::bounds_of(tris);
     let aspect = options.width as f64 / options.height as f64;
     let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
-    let diag = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
-    render(tris, accel, &cam, options, diag, surfaces, waves).unwrap()
+    render(tris, accel, &cam, options, bounds.as_ref(), surfaces, waves).unwrap()
 }
 
 fn look() -> CameraChoice {
@@ -271,6 +270,58 @@ fn the_image_does_not_depend_on_the_wave_size() {
     let bvh = with(AccelKind::Mbvh8, false);
     assert_eq!(bvh, with(AccelKind::Dacrt, false));
     assert_eq!(bvh, with(AccelKind::Mbvh8, true));
+}
+
+/// Pixels whose camera rays cannot reach the scene's bounds get no rays: they show what a
+/// traced miss shows, bit for bit, for every integrator and AOV, with waves of any size.
+#[test]
+fn pixels_outside_the_scenes_rectangle_are_the_misses_they_would_trace() {
+    let tris = two_quads();
+    let bounds = rayd::scene::bounds_of(&tris).unwrap();
+    let far = CameraChoice::LookAt {
+        eye: [1.5, 4.0, 14.0],
+        target: [0.0, 0.4, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov: 35.0,
+    };
+    let accel = build(AccelKind::Mbvh8, &tris, &BuildOptions::default()).unwrap();
+    for integrator in [
+        Integrator::Primary,
+        Integrator::Normals,
+        Integrator::Ao,
+        Integrator::Path,
+    ] {
+        let options = RenderOptions {
+            width: 96,
+            height: 64,
+            spp: 2,
+            integrator,
+            bounces: 2,
+            seed: 3,
+            sky: [0.7, 0.8, 1.1],
+            aovs: all_aovs(),
+            ..RenderOptions::default()
+        };
+        let cam = ViewCamera::choose_from(&far, &[], Some(bounds), 1.5).unwrap();
+        let rect = cam.pixel_rect(&bounds, 96, 64);
+        assert!(
+            (rect.x1 - rect.x0) * (rect.y1 - rect.y0) < 96 * 64 / 2,
+            "{rect:?}"
+        );
+        for waves in [ALL_AT_ONCE, InPlace { wave_seconds: 1e-5 }] {
+            let go = |b: Option<&rayd::geometry::Aabb>| {
+                render(&tris, accel.as_ref(), &cam, &options, b, None, &waves).unwrap()
+            };
+            let (culled, fewer) = go(Some(&bounds));
+            let (traced, all) = go(None);
+            assert!(fewer.rays < all.rays, "{integrator:?}");
+            assert_eq!(
+                encode_exr(&culled).unwrap(),
+                encode_exr(&traced).unwrap(),
+                "{integrator:?}"
+            );
+        }
+    }
 }
 
 /// Without a camera the view frames the bounds, even for a scene that has cameras.

@@ -316,7 +316,6 @@ impl Engine {
             let aspect = request.width as f64 / request.height as f64;
             let bounds = crate::scene::bounds_of(&g.triangles);
             let camera = ViewCamera::choose_from(&request.camera, &input.cameras, bounds, aspect)?;
-            let diagonal = bounds.map(|b| b.diagonal()).unwrap_or(1.0);
             let kind = self.resolve(
                 request.accel,
                 g,
@@ -360,7 +359,7 @@ impl Engine {
                 prepared.accel.as_ref(),
                 &camera,
                 &options,
-                diagonal,
+                bounds.as_ref(),
                 input.surfaces.as_deref(),
                 &waves,
             )?;

@@ -212,6 +212,79 @@ impl ViewCamera {
         }
     }
 
+    /// The pixels of a `width` × `height` image whose camera rays may reach `bounds`: every
+    /// ray through a pixel outside misses every triangle inside, so a renderer can give
+    /// that pixel what a miss gives without making or tracing its rays. The box's corners
+    /// are projected onto the image plane and the rectangle around them is widened by
+    /// [`RECT_MARGIN`] pixels, and the box by a relative [`RECT_PAD`], which covers the
+    /// rays' rounding to f32 many times over. Where a corner lies on or behind the eye's
+    /// plane (a perspective camera inside or beside the box), or anything is not finite,
+    /// the whole image.
+    pub fn pixel_rect(&self, bounds: &Aabb, width: u32, height: u32) -> PixelRect {
+        let full = PixelRect::full(width, height);
+        if bounds.is_empty() {
+            return PixelRect::EMPTY;
+        }
+        let (lo, hi) = (bounds.min.map(f64::from), bounds.max.map(f64::from));
+        let scale = (0..3)
+            .map(|k| lo[k].abs().max(hi[k].abs()).max(self.eye[k].abs()))
+            .fold(f64::from(bounds.diagonal()), f64::max);
+        let pad = RECT_PAD * scale;
+        let (half_w, half_h, perspective) = match self.kind {
+            ViewKind::Perspective { half_w, half_h } => (half_w, half_h, true),
+            ViewKind::Orthographic { half_w, half_h } => (half_w, half_h, false),
+        };
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let (mut x_lo, mut x_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        let (mut y_lo, mut y_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+        for corner in 0..8 {
+            let c: [f64; 3] = std::array::from_fn(|k| {
+                if corner >> k & 1 == 0 {
+                    lo[k] - pad
+                } else {
+                    hi[k] + pad
+                }
+            });
+            let d = sub(c, self.eye);
+            let (a, b) = if perspective {
+                let z = dot(d, self.forward);
+                if !(z > 1e-9 * norm(d)) {
+                    return full;
+                }
+                (dot(d, self.right) / z, dot(d, self.up) / z)
+            } else {
+                (dot(d, self.right), dot(d, self.up))
+            };
+            // The inverse of `rays`' mapping from pixels to the image plane.
+            let x = (a / half_w + 1.0) * 0.5 * f64::from(width);
+            let y = (1.0 - b / half_h) * 0.5 * f64::from(height);
+            x_lo = x_lo.min(x);
+            x_hi = x_hi.max(x);
+            y_lo = y_lo.min(y);
+            y_hi = y_hi.max(y);
+        }
+        if ![x_lo, x_hi, y_lo, y_hi].iter().all(|v| v.is_finite()) {
+            return full;
+        }
+        // Pixel `i` covers [i, i + 1): the columns from the one holding `x_lo` to the
+        // one holding `x_hi`, each side widened by the margin, then clipped to the image.
+        let span = |lo: f64, hi: f64, n: u32| {
+            let first = (lo.floor() - RECT_MARGIN).max(0.0);
+            let last = (hi.floor() + RECT_MARGIN).min(f64::from(n) - 1.0);
+            if first > last {
+                (0, 0)
+            } else {
+                (first as u32, last as u32 + 1)
+            }
+        };
+        let (x0, x1) = span(x_lo, x_hi, width);
+        let (y0, y1) = span(y_lo, y_hi, height);
+        if x0 == x1 || y0 == y1 {
+            return PixelRect::EMPTY;
+        }
+        PixelRect { x0, x1, y0, y1 }
+    }
+
     /// Where the camera is.
     pub fn eye(&self) -> [f64; 3] {
         self.eye
@@ -303,6 +376,51 @@ fn ray(org: [f64; 3], dir: [f64; 3]) -> Ray {
     }
 }
 
+/// Pixels by which [`ViewCamera::pixel_rect`] widens the projected box on every side.
+const RECT_MARGIN: f64 = 2.0;
+/// How much [`ViewCamera::pixel_rect`] grows the box, relative to the largest coordinate
+/// in play (box, eye or diagonal): far more than f32 rounding moves a ray or a hit.
+const RECT_PAD: f64 = 1e-4;
+
+/// A rectangle of pixels: columns `x0..x1` of rows `y0..y1`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PixelRect {
+    /// First column.
+    pub x0: u32,
+    /// One past the last column.
+    pub x1: u32,
+    /// First row.
+    pub y0: u32,
+    /// One past the last row.
+    pub y1: u32,
+}
+
+impl PixelRect {
+    /// No pixel.
+    pub const EMPTY: PixelRect = PixelRect {
+        x0: 0,
+        x1: 0,
+        y0: 0,
+        y1: 0,
+    };
+
+    /// Every pixel of a `width` × `height` image.
+    pub fn full(width: u32, height: u32) -> PixelRect {
+        PixelRect {
+            x0: 0,
+            x1: width,
+            y0: 0,
+            y1: height,
+        }
+    }
+
+    /// Whether pixel `(x, y)` is inside.
+    #[inline]
+    pub fn contains(&self, x: u32, y: u32) -> bool {
+        (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y)
+    }
+}
+
 /// How many rays [`ViewCamera::rays`] makes at once.
 pub const RAYS_AT_ONCE: usize = 8;
 
@@ -340,6 +458,121 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Whether `ray` meets `b` at all (a slab test in f64, NaN counted as a meeting).
+    fn meets(ray: &Ray, b: &Aabb) -> bool {
+        let (mut t0, mut t1) = (f64::from(ray.tmin), f64::from(ray.tmax));
+        for k in 0..3 {
+            let (o, d) = (f64::from(ray.org[k]), f64::from(ray.dir[k]));
+            let (lo, hi) = (f64::from(b.min[k]), f64::from(b.max[k]));
+            if d == 0.0 {
+                if o < lo || o > hi {
+                    return false;
+                }
+                continue;
+            }
+            let (a, c) = ((lo - o) / d, (hi - o) / d);
+            t0 = t0.max(a.min(c));
+            t1 = t1.min(a.max(c));
+        }
+        !(t0 > t1)
+    }
+
+    #[test]
+    fn no_ray_outside_the_pixel_rect_meets_the_box() {
+        let ortho = Camera {
+            to_world: [
+                [0.0, 0.0, -1.0, 0.0],
+                [0.0, 1.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0, 0.0],
+                [9.0, 0.5, 0.2, 1.0],
+            ],
+            projection: Projection::Orthographic {
+                xmag: 4.0,
+                ymag: 3.0,
+            },
+        };
+        let cams = [
+            ViewCamera::look_at(
+                [0.3, -1.0, 5.0],
+                [0.1, 0.2, -0.7],
+                [0.0, 1.0, 0.0],
+                37.0,
+                1.3,
+            )
+            .unwrap(),
+            ViewCamera::look_at([1e4, 2e-3, -7.0], [0.0; 3], [0.0, 0.0, 1.0], 120.0, 0.5).unwrap(),
+            ViewCamera::from_scene(&ortho, 640.0 / 480.0).unwrap(),
+        ];
+        let boxes = [
+            Aabb {
+                min: [-0.5, -0.2, -1.0],
+                max: [0.4, 0.3, -0.6],
+            },
+            Aabb {
+                min: [-30.0, -1.0, -2.0],
+                max: [-29.0, 1.0, 2.0],
+            },
+            Aabb {
+                min: [1.0, 1.0, 1.0],
+                max: [1.0, 1.0, 1.0],
+            },
+        ];
+        let (w, h) = (160, 120);
+        let mut rng = crate::render::rng::Pcg32::new(777, 1);
+        let mut culled = 0;
+        for cam in &cams {
+            for b in &boxes {
+                let rect = cam.pixel_rect(b, w, h);
+                for y in 0..h {
+                    for x in 0..w {
+                        if rect.contains(x, y) {
+                            continue;
+                        }
+                        culled += 1;
+                        // The pixel's corners and a few points inside.
+                        for k in 0..6 {
+                            let (jx, jy) = match k {
+                                0 => (0.0, 0.0),
+                                1 => (0.999_999, 0.999_999),
+                                _ => (rng.next_f32() as f64, rng.next_f32() as f64),
+                            };
+                            let r = cam.ray(f64::from(x) + jx, f64::from(y) + jy, w, h);
+                            assert!(!meets(&r, b), "{cam:?} {b:?} pixel {x},{y} {rect:?}");
+                        }
+                    }
+                }
+            }
+        }
+        assert!(culled > 0);
+        // A small box in the middle of the view: a small rectangle around the middle.
+        let cam =
+            ViewCamera::look_at([0.0, 0.0, 10.0], [0.0; 3], [0.0, 1.0, 0.0], 45.0, 1.0).unwrap();
+        let small = Aabb {
+            min: [-0.5; 3],
+            max: [0.5; 3],
+        };
+        let rect = cam.pixel_rect(&small, 200, 200);
+        assert!(rect.contains(100, 100) && rect.x1 - rect.x0 < 40 && rect.y1 - rect.y0 < 40);
+        // The eye inside the box, or the box behind it: every pixel.
+        let around = Aabb {
+            min: [-20.0; 3],
+            max: [20.0; 3],
+        };
+        assert_eq!(cam.pixel_rect(&around, 200, 200), PixelRect::full(200, 200));
+        let behind = Aabb {
+            min: [-1.0, -1.0, 11.0],
+            max: [1.0, 1.0, 12.0],
+        };
+        assert_eq!(cam.pixel_rect(&behind, 200, 200), PixelRect::full(200, 200));
+        // Off to the side: no pixel.
+        let aside = Aabb {
+            min: [100.0, -1.0, -1.0],
+            max: [101.0, 1.0, 1.0],
+        };
+        assert_eq!(cam.pixel_rect(&aside, 200, 200), PixelRect::EMPTY);
+        assert_eq!(cam.pixel_rect(&Aabb::EMPTY, 200, 200), PixelRect::EMPTY);
     }
 
     #[test]

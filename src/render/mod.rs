@@ -17,8 +17,8 @@ pub mod surface;
 pub mod texture;
 
 use crate::accel::{Intersector, Query};
-use crate::geometry::{dot, Hit, Ray, Triangle};
-use camera::{ViewCamera, RAYS_AT_ONCE};
+use crate::geometry::{dot, Aabb, Hit, Ray, Triangle};
+use camera::{PixelRect, ViewCamera, RAYS_AT_ONCE};
 use glam::Vec3;
 use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
@@ -301,7 +301,8 @@ const FIRST_WAVE_PIXELS: usize = 1 << 13;
 const MIN_WAVE_PIXELS: usize = 1 << 10;
 
 /// Renders `triangles` (the ones `accel` was built over) through `camera`, in waves driven
-/// by `waves`. `scene_diagonal` sets the ambient-occlusion distance. `surfaces` holds the
+/// by `waves`. `bounds`, a box around `triangles` (`None`: not known), tells which pixels'
+/// camera rays can hit anything; only those are traced. `surfaces` holds the
 /// materials and lights that `path` and the `albedo` and `normal` AOVs use; without it every
 /// triangle has glTF's default material, face normals and no light but the sky.
 pub fn render<W: Waves + ?Sized>(
@@ -309,7 +310,7 @@ pub fn render<W: Waves + ?Sized>(
     accel: &dyn Intersector,
     camera: &ViewCamera,
     options: &RenderOptions,
-    scene_diagonal: f32,
+    bounds: Option<&Aabb>,
     surfaces: Option<&Surfaces>,
     waves: &W,
 ) -> Result<(Image, RenderStats), W::Error> {
@@ -340,6 +341,14 @@ pub fn render<W: Waves + ?Sized>(
     let (w, h) = (options.width, options.height);
     let n = w as usize * h as usize;
     let spp = options.spp.max(1);
+    // The ambient-occlusion distance comes from the triangles themselves, whatever box the
+    // caller gave.
+    let scene_diagonal = match options.integrator {
+        Integrator::Ao => crate::scene::bounds_of(triangles).map_or(1.0, |b| b.diagonal()),
+        _ => 1.0,
+    };
+    // Pixels outside it see what a miss sees, without a ray (`render_wave`).
+    let visible = bounds.map_or(PixelRect::full(w, h), |b| camera.pixel_rect(b, w, h));
     let mut sum = vec![[0.0f32; 3]; n];
     let mut covered = vec![0u32; n];
     let mut primary = if options.aovs.is_empty() {
@@ -386,6 +395,7 @@ pub fn render<W: Waves + ?Sized>(
                         camera,
                         options,
                         scene_diagonal,
+                        visible,
                         surfaces,
                         lights: &lights,
                     },
@@ -448,6 +458,8 @@ struct WaveOut<'a> {
 /// `perf`), so they live here across the frame and only grow.
 #[derive(Default)]
 struct Scratch {
+    /// The wave's pixels (from its first) whose camera rays are traced, in order.
+    pixels: Vec<u32>,
     paths: Paths,
     steps: Vec<Step>,
     trace: TraceBufs,
@@ -513,6 +525,8 @@ struct Frame<'a> {
     camera: &'a ViewCamera,
     options: &'a RenderOptions,
     scene_diagonal: f32,
+    /// The pixels whose camera rays may hit a triangle ([`ViewCamera::pixel_rect`]).
+    visible: PixelRect,
     surfaces: &'a Surfaces,
     lights: &'a LightSampler,
 }
@@ -575,31 +589,56 @@ fn render_wave(
         camera,
         options,
         scene_diagonal,
+        visible,
         surfaces,
         ..
     } = frame;
-    let h = options.height;
+    let (w, h) = (options.width as usize, options.height as usize);
     let spp = options.spp.max(1);
     let Scratch {
+        pixels,
         paths,
         steps,
         trace,
         shadows,
     } = scratch;
+    // Only the pixels whose camera rays can reach the scene get rays and paths; the others
+    // get what a camera ray that misses gives, here and now (a pixel takes one sample per
+    // wave, so when its sum grows does not change it).
+    let miss = match options.integrator {
+        Integrator::Path => options.sky,
+        _ => BACKGROUND,
+    };
+    pixels.clear();
+    for y in start / w..=(end - 1) / w {
+        let (row_start, row_end) = ((y * w).max(start), ((y + 1) * w).min(end));
+        let inside = (visible.y0..visible.y1).contains(&(y as u32));
+        let (x0, x1) = if inside {
+            (visible.x0 as usize, visible.x1 as usize)
+        } else {
+            (0, 0)
+        };
+        let (lit_start, lit_end) = ((y * w + x0).max(row_start), (y * w + x1).min(row_end));
+        let lit = lit_start..lit_end.max(lit_start);
+        if miss != [0.0; 3] {
+            for p in (row_start..row_end).filter(|p| !lit.contains(p)) {
+                add(&mut wave.radiance[p - start], miss, 1.0);
+            }
+        }
+        pixels.extend(lit.map(|p| (p - start) as u32));
+    }
     // The camera rays first, straight into the paths' ray list, a group of pixels at a time
     // (the last group padded with its last pixel), then the paths.
     paths.rays.clear();
-    paths.rays.resize(end - start, Ray::EMPTY);
+    paths.rays.resize(pixels.len(), Ray::EMPTY);
     paths
         .rays
         .par_chunks_mut(RAYS_AT_ONCE)
-        .enumerate()
-        .for_each(|(k, group)| {
-            camera_rays(camera, options, (start + k * RAYS_AT_ONCE, end, s), group)
-        });
+        .zip(pixels.par_chunks(RAYS_AT_ONCE))
+        .for_each(|(group, lit)| camera_rays(camera, options, (start, lit, s), group));
     // Each sample's cone covers its share of the pixel: the box filter averages the
     // pixel's samples (pbrt-v4's scale of ray differentials, 1/√spp and at most 8×).
-    let (width, spread) = camera.pixel_cone(h);
+    let (width, spread) = camera.pixel_cone(h as u32);
     let share = (1.0 / (spp as f32).sqrt()).max(0.125);
     let cone = Cone {
         width: width * share,
@@ -608,24 +647,21 @@ fn render_wave(
     paths.state.clear();
     paths
         .state
-        .par_extend(paths.rays.par_iter().enumerate().map(|(i, ray)| {
-            let p = start + i;
+        .par_extend(paths.rays.par_iter().zip(&pixels[..]).map(|(ray, &i)| {
+            let p = start + i as usize;
             let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-            PathState::new(i, ray, rng, cone)
+            PathState::new(i as usize, ray, rng, cone)
         }));
     trace_closest(frame, paths, trace, stats);
-    wave.covered
-        .par_iter_mut()
-        .zip(&paths.hits[..])
-        .for_each(|(c, h)| *c += h.is_hit() as u32);
+    for (p, hit) in paths.state.iter().zip(&paths.hits) {
+        wave.covered[p.pixel] += hit.is_hit() as u32;
+    }
     if let Some(primary) = wave.primary.as_deref_mut() {
         let lanes = paths.state.par_iter().zip(&paths.rays[..]);
-        primary
-            .par_iter_mut()
-            .zip(lanes)
+        let found: Vec<Primary> = lanes
             .zip(&paths.hits[..])
-            .for_each(|((q, (p, ray)), hit)| {
-                *q = if hit.is_hit() {
+            .map(|((p, ray), hit)| {
+                if hit.is_hit() {
                     let tri = &triangles[hit.prim as usize];
                     let width = p.cone.width_at(p.travelled + hit.t);
                     let sp = surfaces.at(tri, hit, Vec3::from(ray.dir), width);
@@ -637,34 +673,42 @@ fn render_wave(
                     }
                 } else {
                     Primary::MISS
-                };
-            });
+                }
+            })
+            .collect();
+        for (p, q) in paths.state.iter().zip(found) {
+            primary[p.pixel] = q;
+        }
     }
     let out = &mut *wave.radiance;
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
             let lanes = paths.rays.par_iter().zip(&paths.hits[..]);
-            out.par_iter_mut().zip(lanes).for_each(|(o, (r, hit))| {
-                let c = if hit.is_hit() {
-                    let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
-                    if options.integrator == Integrator::Primary {
-                        let k = 0.1 + 0.9 * -dot(nrm, normalize(r.dir));
-                        [k, k, k]
+            let shown: Vec<[f32; 3]> = lanes
+                .map(|(r, hit)| {
+                    if hit.is_hit() {
+                        let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
+                        if options.integrator == Integrator::Primary {
+                            let k = 0.1 + 0.9 * -dot(nrm, normalize(r.dir));
+                            [k, k, k]
+                        } else {
+                            nrm.map(|x| 0.5 * x + 0.5)
+                        }
                     } else {
-                        nrm.map(|x| 0.5 * x + 0.5)
+                        BACKGROUND
                     }
-                } else {
-                    BACKGROUND
-                };
-                add(o, c, 1.0);
-            });
+                })
+                .collect();
+            for (p, c) in paths.state.iter().zip(shown) {
+                add(&mut out[p.pixel], c, 1.0);
+            }
         }
         Integrator::Ao => {
             let dist = scene_diagonal / 8.0;
             let mut idx = Vec::new();
             let mut ao_rays = Vec::new();
             let lanes = paths.state.iter_mut().zip(&paths.rays).zip(&paths.hits);
-            for (i, ((p, r), hit)) in lanes.enumerate() {
+            for ((p, r), hit) in lanes {
                 if hit.is_hit() {
                     let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
                     let d = cosine_hemisphere(nrm, p.rng.next_f32(), p.rng.next_f32());
@@ -674,9 +718,9 @@ fn render_wave(
                         dir: d,
                         tmax: dist,
                     });
-                    idx.push(i);
+                    idx.push(p.pixel);
                 } else {
-                    add(&mut out[i], BACKGROUND, 1.0);
+                    add(&mut out[p.pixel], BACKGROUND, 1.0);
                 }
             }
             let mut open = vec![Vec3::ONE; ao_rays.len()];
@@ -689,21 +733,21 @@ fn render_wave(
     }
 }
 
-/// The camera rays of sample `s` of the pixels from `first` on (at most `RAYS_AT_ONCE`,
-/// none past `end`) into `group`. Out of line, so that how the camera's f64 stages compile
-/// does not depend on what the pool's loop inlines around them.
+/// The camera rays of sample `s` of the pixels `start + lit[i]` (at most `RAYS_AT_ONCE`)
+/// into `group`. Out of line, so that how the camera's f64 stages compile does not depend
+/// on what the pool's loop inlines around them.
 #[inline(never)]
 fn camera_rays(
     camera: &ViewCamera,
     options: &RenderOptions,
-    (first, end, s): (usize, usize, u32),
+    (start, lit, s): (usize, &[u32], u32),
     group: &mut [Ray],
 ) {
     let (w, h) = (options.width, options.height);
     let spp = options.spp.max(1);
     let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
     for i in 0..RAYS_AT_ONCE {
-        let p = (first + i).min(end - 1);
+        let p = start + lit[i.min(lit.len() - 1)] as usize;
         let (jx, jy) = pixel_sample(options.seed, p, s, spp);
         x[i] = (p % w as usize) as f64 + jx;
         y[i] = (p / w as usize) as f64 + jy;
