@@ -240,18 +240,18 @@ pub struct RenderStats {
     pub trace_seconds: f64,
 }
 
-/// Pixels per wave for a core that wants large batches (DACRT): bounds the memory of one
+/// Paths per wave for a core that wants large batches (DACRT): bounds the memory of one
 /// wave's rays and hits (about 12 MiB).
-const WAVE_PIXELS: usize = 1 << 18;
+const WAVE_PATHS: usize = 1 << 18;
 
-/// Pixels per wave for the per-ray cores. A wave's buffers (paths, rays, hits, shading
+/// Paths per wave for the per-ray cores. A wave's buffers (paths, rays, hits, shading
 /// steps: 180–350 bytes a pixel) are written fresh the first time, and every new page is
 /// a fault that serialises on the process's memory map; waves an eighth of DACRT's size
 /// touch an eighth of the memory and reuse it, and its passes stay in cache. Path renders
 /// of 640×480 took 0.80–0.95× the time with a quarter (2^16), the trace itself 0.95–1.18×;
 /// an eighth, once the rays and hits lived beside the paths, took 0.85–1.00× the shading
 /// time of a quarter, the trace unchanged (BENCHMARKS §19).
-const BVH_WAVE_PIXELS: usize = 1 << 15;
+const BVH_WAVE_PATHS: usize = 1 << 15;
 
 const BACKGROUND: [f32; 3] = [0.05, 0.06, 0.08];
 
@@ -279,8 +279,8 @@ pub fn offset_origin(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
     ]
 }
 
-/// How a caller drives a render's waves: each wave (a block of pixels for one sample,
-/// with all its bounces) runs through [`Waves::run_wave`], where the caller may hold the
+/// How a caller drives a render's waves: each wave (a block of pixels for a run of
+/// [`SAMPLES_AT_ONCE`] samples, with all their bounces) runs through [`Waves::run_wave`], where the caller may hold the
 /// thread pool under a scheduler's lease, notice cancellation and report progress. Waves
 /// are sized to last about [`Waves::wave_seconds`]; how the pixels are split into waves
 /// never changes the image, since each pixel and sample owns its random stream.
@@ -295,10 +295,17 @@ pub trait Waves: Sync {
     fn progress(&self, fraction: f64);
 }
 
-/// Pixels of the first wave when waves are sized in seconds, before a rate is known.
-const FIRST_WAVE_PIXELS: usize = 1 << 13;
+/// Paths of the first wave when waves are sized in seconds, before a rate is known.
+const FIRST_WAVE_PATHS: usize = 1 << 13;
 /// The smallest wave.
-const MIN_WAVE_PIXELS: usize = 1 << 10;
+const MIN_WAVE_PATHS: usize = 1 << 10;
+
+/// Samples of a pixel that one wave takes together, its paths side by side. The samples
+/// of a pixel mostly hit the same surface: shaded one after another, their texture reads
+/// find the texels the first one brought into cache, where a wave per sample read them
+/// again from memory a whole image later. The runs are fixed (samples 0–3, 4–7, …), so a
+/// pixel's sum adds the same terms in the same order however waves are sized.
+const SAMPLES_AT_ONCE: u32 = 4;
 
 /// Renders `triangles` (the ones `accel` was built over) through `camera`, in waves driven
 /// by `waves`. `bounds`, a box around `triangles` (`None`: not known), tells which pixels'
@@ -359,13 +366,14 @@ pub fn render<W: Waves + ?Sized>(
     let mut stats = RenderStats::default();
     let total = n as f64 * spp as f64;
     let mut done = 0.0;
+    let run = spp.min(SAMPLES_AT_ONCE);
     let max_wave = if accel.large_batches() {
-        WAVE_PIXELS
+        WAVE_PATHS
     } else {
-        BVH_WAVE_PIXELS
-    };
+        BVH_WAVE_PATHS
+    } / run as usize;
     let mut wave_pixels = if waves.wave_seconds().is_finite() {
-        FIRST_WAVE_PIXELS
+        FIRST_WAVE_PATHS / run as usize
     } else {
         max_wave
     };
@@ -374,12 +382,13 @@ pub fn render<W: Waves + ?Sized>(
     while start < n {
         let end = (start + wave_pixels).min(n);
         let mut seconds = 0.0;
-        for s in 0..spp {
+        for first in (0..spp).step_by(run as usize) {
+            let samples = first..(first + run).min(spp);
             let t0 = std::time::Instant::now();
             let mut out = WaveOut {
                 radiance: &mut sum[start..end],
                 covered: &mut covered[start..end],
-                primary: if s == 0 && !primary.is_empty() {
+                primary: if first == 0 && !primary.is_empty() {
                     Some(&mut primary[start..end])
                 } else {
                     None
@@ -387,6 +396,7 @@ pub fn render<W: Waves + ?Sized>(
             };
             let stats = &mut stats;
             let scratch = &mut scratch;
+            let taken = samples.len();
             waves.run_wave(&mut || {
                 render_wave(
                     Frame {
@@ -399,21 +409,22 @@ pub fn render<W: Waves + ?Sized>(
                         surfaces,
                         lights: &lights,
                     },
-                    (start, end, s),
+                    (start, end, samples.clone()),
                     &mut out,
                     scratch,
                     stats,
                 )
             })?;
             seconds += t0.elapsed().as_secs_f64();
-            done += (end - start) as f64;
+            done += ((end - start) * taken) as f64;
             waves.progress(done / total);
         }
         // Size the next block's waves from this block's rate.
         let target = waves.wave_seconds();
         wave_pixels = if target.is_finite() && seconds > 0.0 {
             let rate = (end - start) as f64 * spp as f64 / seconds;
-            ((rate * target) as usize).clamp(MIN_WAVE_PIXELS, max_wave)
+            let paths = (rate * target) as usize * run as usize / spp as usize;
+            (paths.clamp(MIN_WAVE_PATHS, max_wave * run as usize) / run as usize).max(1)
         } else {
             max_wave
         };
@@ -579,7 +590,7 @@ fn wrap_unit(v: f64) -> f64 {
 /// One wave: sample `s` of pixels `start..end`, accumulated into `out`.
 fn render_wave(
     frame: Frame<'_>,
-    (start, end, s): (usize, usize, u32),
+    (start, end, samples): (usize, usize, std::ops::Range<u32>),
     wave: &mut WaveOut<'_>,
     scratch: &mut Scratch,
     stats: &mut RenderStats,
@@ -609,6 +620,7 @@ fn render_wave(
         Integrator::Path => options.sky,
         _ => BACKGROUND,
     };
+    let run = samples.len();
     pixels.clear();
     for y in start / w..=(end - 1) / w {
         let (row_start, row_end) = ((y * w).max(start), ((y + 1) * w).min(end));
@@ -622,20 +634,33 @@ fn render_wave(
         let lit = lit_start..lit_end.max(lit_start);
         if miss != [0.0; 3] {
             for p in (row_start..row_end).filter(|p| !lit.contains(p)) {
-                add(&mut wave.radiance[p - start], miss, 1.0);
+                for _ in 0..run {
+                    add(&mut wave.radiance[p - start], miss, 1.0);
+                }
             }
         }
         pixels.extend(lit.map(|p| (p - start) as u32));
     }
-    // The camera rays first, straight into the paths' ray list, a group of pixels at a time
-    // (the last group padded with its last pixel), then the paths.
+    // Path `j` is sample `samples.start + j % run` of pixel `pixels[j / run]`: a pixel's
+    // samples side by side.
+    let sample_of = |j: usize| samples.start + (j % run) as u32;
+    // The camera rays first, straight into the paths' ray list, a group of paths at a time
+    // (the last group padded with its last path), then the paths.
     paths.rays.clear();
-    paths.rays.resize(pixels.len(), Ray::EMPTY);
+    paths.rays.resize(pixels.len() * run, Ray::EMPTY);
     paths
         .rays
         .par_chunks_mut(RAYS_AT_ONCE)
-        .zip(pixels.par_chunks(RAYS_AT_ONCE))
-        .for_each(|(group, lit)| camera_rays(camera, options, (start, lit, s), group));
+        .enumerate()
+        .for_each(|(k, group)| {
+            let first = k * RAYS_AT_ONCE;
+            let mut lanes = [(0usize, 0u32); RAYS_AT_ONCE];
+            for (i, lane) in lanes.iter_mut().enumerate() {
+                let j = (first + i).min(first + group.len() - 1);
+                *lane = (start + pixels[j / run] as usize, sample_of(j));
+            }
+            camera_rays(camera, options, &lanes, group)
+        });
     // Each sample's cone covers its share of the pixel: the box filter averages the
     // pixel's samples (pbrt-v4's scale of ray differentials, 1/√spp and at most 8×).
     let (width, spread) = camera.pixel_cone(h as u32);
@@ -647,19 +672,22 @@ fn render_wave(
     paths.state.clear();
     paths
         .state
-        .par_extend(paths.rays.par_iter().zip(&pixels[..]).map(|(ray, &i)| {
-            let p = start + i as usize;
-            let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), p as u64);
-            PathState::new(i as usize, ray, rng, cone)
+        .par_extend(paths.rays.par_iter().enumerate().map(|(j, ray)| {
+            let i = pixels[j / run] as usize;
+            let s = sample_of(j);
+            let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), (start + i) as u64);
+            PathState::new(i, ray, rng, cone)
         }));
     trace_closest(frame, paths, trace, stats);
     for (p, hit) in paths.state.iter().zip(&paths.hits) {
         wave.covered[p.pixel] += hit.is_hit() as u32;
     }
     if let Some(primary) = wave.primary.as_deref_mut() {
+        // Sample 0 of each pixel: the first of its run.
         let lanes = paths.state.par_iter().zip(&paths.rays[..]);
         let found: Vec<Primary> = lanes
             .zip(&paths.hits[..])
+            .step_by(run)
             .map(|((p, ray), hit)| {
                 if hit.is_hit() {
                     let tri = &triangles[hit.prim as usize];
@@ -676,7 +704,7 @@ fn render_wave(
                 }
             })
             .collect();
-        for (p, q) in paths.state.iter().zip(found) {
+        for (p, q) in paths.state.iter().step_by(run).zip(found) {
             primary[p.pixel] = q;
         }
     }
@@ -733,21 +761,20 @@ fn render_wave(
     }
 }
 
-/// The camera rays of sample `s` of the pixels `start + lit[i]` (at most `RAYS_AT_ONCE`)
-/// into `group`. Out of line, so that how the camera's f64 stages compile does not depend
-/// on what the pool's loop inlines around them.
+/// The camera rays of `lanes` (pixel, sample), at most `RAYS_AT_ONCE`, into `group`. Out
+/// of line, so that how the camera's f64 stages compile does not depend on what the
+/// pool's loop inlines around them.
 #[inline(never)]
 fn camera_rays(
     camera: &ViewCamera,
     options: &RenderOptions,
-    (start, lit, s): (usize, &[u32], u32),
+    lanes: &[(usize, u32); RAYS_AT_ONCE],
     group: &mut [Ray],
 ) {
     let (w, h) = (options.width, options.height);
     let spp = options.spp.max(1);
     let (mut x, mut y) = ([0.0; RAYS_AT_ONCE], [0.0; RAYS_AT_ONCE]);
-    for i in 0..RAYS_AT_ONCE {
-        let p = start + lit[i.min(lit.len() - 1)] as usize;
+    for (i, &(p, s)) in lanes.iter().enumerate() {
         let (jx, jy) = pixel_sample(options.seed, p, s, spp);
         x[i] = (p % w as usize) as f64 + jx;
         y[i] = (p / w as usize) as f64 + jy;
