@@ -237,7 +237,10 @@ fn render_writes_png_and_exr() {
             "0.5,0.5,0",
         ]);
         assert!(ok, "{err}");
-        assert_eq!(j["rays"], 32 * 24);
+        // Rays traced: one per pixel that can see the quad (the others see the background
+        // without one).
+        let rays = j["rays"].as_u64().unwrap();
+        assert!(rays > 0 && rays < 32 * 24, "{rays}");
         assert!(std::fs::read(&out).unwrap().starts_with(magic));
     }
     let (ok, _, err) = rayd(&["render", p(&scene), "-o", "x.jpg"]);
