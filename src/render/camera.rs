@@ -248,7 +248,8 @@ impl ViewCamera {
             let d = sub(c, self.eye);
             let (a, b) = if perspective {
                 let z = dot(d, self.forward);
-                if !(z > 1e-9 * norm(d)) {
+                // On or behind the eye's plane, or NaN: the whole image.
+                if z.partial_cmp(&(1e-9 * norm(d))) != Some(std::cmp::Ordering::Greater) {
                     return full;
                 }
                 (dot(d, self.right) / z, dot(d, self.up) / z)
@@ -476,7 +477,7 @@ mod tests {
             t0 = t0.max(a.min(c));
             t1 = t1.min(a.max(c));
         }
-        !(t0 > t1)
+        t0.partial_cmp(&t1) != Some(std::cmp::Ordering::Greater)
     }
 
     #[test]
