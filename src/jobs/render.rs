@@ -316,6 +316,14 @@ impl Engine {
             let aspect = request.width as f64 / request.height as f64;
             let bounds = crate::scene::bounds_of(&g.triangles);
             let camera = ViewCamera::choose_from(&request.camera, &input.cameras, bounds, aspect)?;
+            // Only pixels that can see the scene send rays (`render::render`): the cost
+            // model hears of theirs.
+            let (w, h) = (request.width, request.height);
+            let seen = bounds.map_or(1.0, |b| {
+                let r = camera.pixel_rect(&b, w, h);
+                f64::from(r.x1 - r.x0) * f64::from(r.y1 - r.y0) / (f64::from(w) * f64::from(h))
+            });
+            let rays = ((rays as f64 * seen) as usize).max(1);
             let kind = self.resolve(
                 request.accel,
                 g,
