@@ -445,12 +445,13 @@ fn the_service_end_to_end() {
         "cancelled"
     );
 
-    // A kill -9 during a render: after the restart the job runs again and finishes.
+    // A kill -9 during a render: after the restart the job runs again and finishes. The
+    // render lasts seconds (at spp 64 it had finished before the kill by session 17).
     let r = s.req(
         "POST",
         &format!("/v1/scenes/{id}/render"),
         &[("Content-Type", "application/json")],
-        br#"{"width": 256, "height": 256, "spp": 64, "integrator": "path", "version": 1}"#,
+        br#"{"width": 256, "height": 256, "spp": 512, "integrator": "path", "version": 1}"#,
     );
     let crashed = r.json()["id"].as_str().unwrap().to_string();
     std::thread::sleep(Duration::from_millis(300));
