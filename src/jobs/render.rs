@@ -320,8 +320,7 @@ impl Engine {
             // model hears of theirs.
             let (w, h) = (request.width, request.height);
             let seen = bounds.map_or(1.0, |b| {
-                let r = camera.pixel_rect(&b, w, h);
-                f64::from(r.x1 - r.x0) * f64::from(r.y1 - r.y0) / (f64::from(w) * f64::from(h))
+                camera.pixel_rect(&b, w, h).len() as f64 / (f64::from(w) * f64::from(h))
             });
             let rays = ((rays as f64 * seen) as usize).max(1);
             let kind = self.resolve(

@@ -226,9 +226,10 @@ impl ViewCamera {
             return PixelRect::EMPTY;
         }
         let (lo, hi) = (bounds.min.map(f64::from), bounds.max.map(f64::from));
-        let scale = (0..3)
-            .map(|k| lo[k].abs().max(hi[k].abs()).max(self.eye[k].abs()))
-            .fold(f64::from(bounds.diagonal()), f64::max);
+        let scale = self.eye.iter().fold(
+            f64::from(bounds.max_abs().max(bounds.diagonal())),
+            |m, e| m.max(e.abs()),
+        );
         let pad = RECT_PAD * scale;
         let (half_w, half_h, perspective) = match self.kind {
             ViewKind::Perspective { half_w, half_h } => (half_w, half_h, true),
@@ -415,6 +416,16 @@ impl PixelRect {
         }
     }
 
+    /// How many pixels it holds.
+    pub fn len(&self) -> usize {
+        (self.x1 - self.x0) as usize * (self.y1 - self.y0) as usize
+    }
+
+    /// Whether it holds no pixel.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
     /// Whether pixel `(x, y)` is inside.
     #[inline]
     pub fn contains(&self, x: u32, y: u32) -> bool {
@@ -429,9 +440,9 @@ pub const RAYS_AT_ONCE: usize = 8;
 mod tests {
     use super::*;
 
-    #[test]
-    fn rays_at_once_are_the_single_rays_bit_for_bit() {
-        let cams = [
+    /// Two perspective cameras: an ordinary one, and a wide one far from the origin.
+    fn perspective_cameras() -> [ViewCamera; 2] {
+        [
             ViewCamera::look_at(
                 [0.3, -1.0, 5.0],
                 [0.1, 0.2, -0.7],
@@ -441,7 +452,12 @@ mod tests {
             )
             .unwrap(),
             ViewCamera::look_at([1e4, 2e-3, -7.0], [0.0; 3], [0.0, 0.0, 1.0], 120.0, 0.5).unwrap(),
-        ];
+        ]
+    }
+
+    #[test]
+    fn rays_at_once_are_the_single_rays_bit_for_bit() {
+        let cams = perspective_cameras();
         let mut rng = crate::render::rng::Pcg32::new(12345, 0);
         let mut next = || rng.next_f32() as f64;
         for cam in &cams {
@@ -494,16 +510,10 @@ mod tests {
                 ymag: 3.0,
             },
         };
+        let [near, far] = perspective_cameras();
         let cams = [
-            ViewCamera::look_at(
-                [0.3, -1.0, 5.0],
-                [0.1, 0.2, -0.7],
-                [0.0, 1.0, 0.0],
-                37.0,
-                1.3,
-            )
-            .unwrap(),
-            ViewCamera::look_at([1e4, 2e-3, -7.0], [0.0; 3], [0.0, 0.0, 1.0], 120.0, 0.5).unwrap(),
+            near,
+            far,
             ViewCamera::from_scene(&ortho, 640.0 / 480.0).unwrap(),
         ];
         let boxes = [

@@ -423,7 +423,7 @@ pub fn render<W: Waves + ?Sized>(
         let target = waves.wave_seconds();
         wave_pixels = if target.is_finite() && seconds > 0.0 {
             let rate = (end - start) as f64 * spp as f64 / seconds;
-            let paths = (rate * target) as usize * run as usize / spp as usize;
+            let paths = (rate * target) as usize;
             (paths.clamp(MIN_WAVE_PATHS, max_wave * run as usize) / run as usize).max(1)
         } else {
             max_wave
@@ -623,17 +623,15 @@ fn render_wave(
     let run = samples.len();
     pixels.clear();
     for y in start / w..=(end - 1) / w {
-        let (row_start, row_end) = ((y * w).max(start), ((y + 1) * w).min(end));
-        let inside = (visible.y0..visible.y1).contains(&(y as u32));
-        let (x0, x1) = if inside {
-            (visible.x0 as usize, visible.x1 as usize)
+        let row = (y * w).max(start)..((y + 1) * w).min(end);
+        // The row's pixels inside the rectangle (an empty range when there are none).
+        let lit = if (visible.y0..visible.y1).contains(&(y as u32)) {
+            (y * w + visible.x0 as usize).max(row.start)..(y * w + visible.x1 as usize).min(row.end)
         } else {
-            (0, 0)
+            row.start..row.start
         };
-        let (lit_start, lit_end) = ((y * w + x0).max(row_start), (y * w + x1).min(row_end));
-        let lit = lit_start..lit_end.max(lit_start);
         if miss != [0.0; 3] {
-            for p in (row_start..row_end).filter(|p| !lit.contains(p)) {
+            for p in row.filter(|p| !lit.contains(p)) {
                 for _ in 0..run {
                     add(&mut wave.radiance[p - start], miss, 1.0);
                 }
@@ -643,7 +641,7 @@ fn render_wave(
     }
     // Path `j` is sample `samples.start + j % run` of pixel `pixels[j / run]`: a pixel's
     // samples side by side.
-    let sample_of = |j: usize| samples.start + (j % run) as u32;
+    let lane = |j: usize| (pixels[j / run] as usize, samples.start + (j % run) as u32);
     // The camera rays first, straight into the paths' ray list, a group of paths at a time
     // (the last group padded with its last path), then the paths.
     paths.rays.clear();
@@ -655,9 +653,10 @@ fn render_wave(
         .for_each(|(k, group)| {
             let first = k * RAYS_AT_ONCE;
             let mut lanes = [(0usize, 0u32); RAYS_AT_ONCE];
-            for (i, lane) in lanes.iter_mut().enumerate() {
+            for (i, slot) in lanes.iter_mut().enumerate() {
                 let j = (first + i).min(first + group.len() - 1);
-                *lane = (start + pixels[j / run] as usize, sample_of(j));
+                let (i, s) = lane(j);
+                *slot = (start + i, s);
             }
             camera_rays(camera, options, &lanes, group)
         });
@@ -673,8 +672,7 @@ fn render_wave(
     paths
         .state
         .par_extend(paths.rays.par_iter().enumerate().map(|(j, ray)| {
-            let i = pixels[j / run] as usize;
-            let s = sample_of(j);
+            let (i, s) = lane(j);
             let rng = Pcg32::new(options.seed ^ ((s as u64) << 40), (start + i) as u64);
             PathState::new(i, ray, rng, cone)
         }));

@@ -216,6 +216,14 @@ const SUBDIVISION_CENTROIDS: [[f32; 3]; SUBDIVISION * SUBDIVISION] = {
     out
 };
 
+/// Twice the area of the triangle whose corners are vertices `c` of coordinate set `attr`
+/// (a coordinate the set lacks reads as zero).
+fn doubled_area(attr: &[Vec2], c: [u32; 3]) -> f32 {
+    let corner = |k: usize| attr.get(c[k] as usize).copied().unwrap_or_default();
+    let (a, b, d) = (corner(0), corner(1), corner(2));
+    (b - a).perp_dot(d - a).abs()
+}
+
 /// Material `m`'s emissive factor × strength: its emission before its texture.
 fn emissive(m: &Material) -> Vec3 {
     Vec3::from(m.emissive_factor) * m.emissive_strength
@@ -371,13 +379,8 @@ impl Surfaces {
             return Lookup::point(uv);
         }
         let log2_across = (width / cos.max(1e-6)).log2();
-        let set = |attr: &[Vec2]| -> f32 {
-            let corner = |k: usize| attr.get(c[k] as usize).copied().unwrap_or_default();
-            let (a, b, d) = (corner(0), corner(1), corner(2));
-            let area = (b - a).perp_dot(d - a).abs();
-            // Both areas are doubled; their ratio is not.
-            log2_across + 0.5 * (area / world).log2()
-        };
+        // Both areas are doubled; their ratio is not.
+        let set = |attr: &[Vec2]| log2_across + 0.5 * (doubled_area(attr, c) / world).log2();
         let log2_width = [
             set(&self.shading.uv0),
             if self.shading.uv1.is_empty() {
@@ -475,9 +478,7 @@ impl Surfaces {
             let Some(c) = corners else {
                 return f32::NEG_INFINITY;
             };
-            let corner = |k: usize| attr.get(c[k] as usize).copied().unwrap_or_default();
-            let (a, b, d) = (corner(0), corner(1), corner(2));
-            let area = 0.5 * (b - a).perp_dot(d - a).abs();
+            let area = 0.5 * doubled_area(attr, c);
             0.5 * (area / SUBDIVISION_CENTROIDS.len() as f32).log2()
         };
         let log2_width = [part(&self.shading.uv0), part(&self.shading.uv1)];
