@@ -357,6 +357,7 @@ pub fn render<W: Waves + ?Sized>(
     // Pixels outside it see what a miss sees, without a ray (`render_wave`).
     let visible = bounds.map_or(PixelRect::full(w, h), |b| camera.pixel_rect(b, w, h));
     let mut sum = vec![[0.0f32; 3]; n];
+    fill_misses(&mut sum, visible, w as usize, options);
     let mut covered = vec![0u32; n];
     let mut primary = if options.aovs.is_empty() {
         Vec::new()
@@ -614,29 +615,14 @@ fn render_wave(
         shadows,
     } = scratch;
     // Only the pixels whose camera rays can reach the scene get rays and paths; the others
-    // get what a camera ray that misses gives, here and now (a pixel takes one sample per
-    // wave, so when its sum grows does not change it).
-    let miss = match options.integrator {
-        Integrator::Path => options.sky,
-        _ => BACKGROUND,
-    };
+    // already hold every sample's miss ([`fill_misses`]).
     let run = samples.len();
     pixels.clear();
-    for y in start / w..=(end - 1) / w {
+    for y in (start / w..=(end - 1) / w).filter(|y| (visible.y0..visible.y1).contains(&(*y as u32)))
+    {
         let row = (y * w).max(start)..((y + 1) * w).min(end);
-        // The row's pixels inside the rectangle (an empty range when there are none).
-        let lit = if (visible.y0..visible.y1).contains(&(y as u32)) {
-            (y * w + visible.x0 as usize).max(row.start)..(y * w + visible.x1 as usize).min(row.end)
-        } else {
-            row.start..row.start
-        };
-        if miss != [0.0; 3] {
-            for p in row.filter(|p| !lit.contains(p)) {
-                for _ in 0..run {
-                    add(&mut wave.radiance[p - start], miss, 1.0);
-                }
-            }
-        }
+        let lit = (y * w + visible.x0 as usize).max(row.start)
+            ..(y * w + visible.x1 as usize).min(row.end);
         pixels.extend(lit.map(|p| (p - start) as u32));
     }
     // Path `j` is sample `samples.start + j % run` of pixel `pixels[j / run]`: a pixel's
@@ -644,7 +630,8 @@ fn render_wave(
     let lane = |j: usize| (pixels[j / run] as usize, samples.start + (j % run) as u32);
     // The camera rays first, straight into the paths' ray list, a group of paths at a time
     // (the last group padded with its last path), then the paths.
-    paths.rays.clear();
+    // Every ray is written below: the list keeps the last wave's rays rather than being
+    // cleared and filled again, one thread writing a megabyte a wave.
     paths.rays.resize(pixels.len() * run, Ray::EMPTY);
     paths
         .rays
@@ -871,7 +858,8 @@ fn trace_closest(
     bufs: &mut TraceBufs,
     stats: &mut RenderStats,
 ) {
-    paths.hits.clear();
+    // The intersector writes every hit: the list keeps what it held rather than being
+    // filled again on one thread.
     paths.hits.resize(paths.rays.len(), Hit::MISS);
     frame.trace(&paths.rays, &mut paths.hits, stats);
     if !frame.surfaces.has_alpha() {
@@ -1236,6 +1224,33 @@ fn shade_vertex(
 }
 
 #[inline]
+/// Gives each pixel outside `visible` the sum of `spp` camera rays that miss: the sky for
+/// `path`, the background otherwise, added one sample at a time as a traced miss adds it, so
+/// the image is bit for bit the one that tracing them would give. Done once, in parallel,
+/// instead of in every wave.
+fn fill_misses(sum: &mut [[f32; 3]], visible: PixelRect, w: usize, options: &RenderOptions) {
+    let miss = match options.integrator {
+        Integrator::Path => options.sky,
+        _ => BACKGROUND,
+    };
+    let mut total = [0.0f32; 3];
+    for _ in 0..options.spp.max(1) {
+        add(&mut total, miss, 1.0);
+    }
+    if total == [0.0; 3] || w == 0 {
+        return;
+    }
+    let (x0, x1) = (visible.x0 as usize, visible.x1 as usize);
+    sum.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        if (visible.y0..visible.y1).contains(&(y as u32)) {
+            row[..x0].fill(total);
+            row[x1..].fill(total);
+        } else {
+            row.fill(total);
+        }
+    });
+}
+
 fn add(o: &mut [f32; 3], c: [f32; 3], k: f32) {
     for j in 0..3 {
         o[j] += c[j] * k;
