@@ -6,7 +6,7 @@
 //! ```text
 //! http_bench trace   SCENE RAYS [--runs N] [--threads T] [--accel A]
 //! http_bench latency SCENE [--samples N] [--threads T]
-//! http_bench frame   SCENE [--rays N] [--frames N] [--threads T]
+//! http_bench frame   SCENE [RAYS] [--rays N] [--frames N] [--threads T]
 //! http_bench rss     SCENE [--rays N] [--threads T]
 //! ```
 //!
@@ -17,7 +17,8 @@
 //!   their latency percentiles, and the same with the server idle.
 //! - `frame`: frames of an animated scene, each a new animation time (`time=`) or a new
 //!   geometry version (`PUT .../geometry`) and a DACRT trace of N rays, against the same
-//!   frame in process (`rayd trace --accel dacrt`: preparation plus trace).
+//!   frame in process (`rayd trace --accel dacrt`: preparation plus trace). With RAYS, the
+//!   frame's rays are also written there (for `scripts/http_trace_cpu.py`).
 //! - `rss`: the server's peak RSS (VmHWM) around one request of N rays (16M), against the
 //!   request + response + structure bytes.
 //!
@@ -533,6 +534,9 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
     let rays_path = tmp.0.join("rays.ray");
     let rays = camera_rays(&o.scene, n, Some(0.0))?;
     std::fs::write(&rays_path, &rays).map_err(|e| e.to_string())?;
+    if let Some(keep) = &o.rays_file {
+        std::fs::write(keep, &rays).map_err(|e| format!("{}: {e}", keep.display()))?;
+    }
     let octet = "application/octet-stream";
     let base = rayd::formats::load_scene(&o.scene, &Default::default())
         .map_err(|e| format!("{}: {e}", o.scene.display()))?;

@@ -10,12 +10,14 @@ of the server and the script also prints the server's core-ms per request by thr
 (the rayon pool, the tokio HTTP threads, the trace's own thread), from the sample counts.
 
     scripts/http_trace_cpu.py SCENE RAYS [--bin target/release/rayd] [--threads 2]
-        [--requests 20] [--accel mbvh8] [--perf]
+        [--requests 20] [--accel mbvh8] [--new-times] [--gap S]
+        [--perf [--perf-out FILE]]
 """
 import argparse
 import collections
 import json
 import os
+import shutil
 import socket
 import statistics
 import subprocess
@@ -71,6 +73,11 @@ def main():
     ap.add_argument("--requests", type=int, default=20)
     ap.add_argument("--accel", default="mbvh8")
     ap.add_argument("--perf", action="store_true")
+    ap.add_argument("--perf-out", help="keep the perf record here (for perf report -i)")
+    ap.add_argument("--new-times", action="store_true",
+                    help="each timed request a new time= of version 1 (an animated frame)")
+    ap.add_argument("--gap", type=float, default=0.0,
+                    help="seconds the server sits idle before each timed request")
     args = ap.parse_args()
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -101,13 +108,17 @@ def main():
                      "-o", perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                 time.sleep(0.5)
             phases, traces = [], []
-            for _ in range(args.requests):
-                _, h, t = request(port, "POST", path, body, "application/octet-stream")
+            for k in range(args.requests):
+                time.sleep(args.gap)
+                timed = f"{path}&version=1&time={0.01 * (k + 1):.2f}" if args.new_times else path
+                _, h, t = request(port, "POST", timed, body, "application/octet-stream")
                 phases.append(t)
                 traces.append(float(h["server-timing"].split("trace;dur=")[1]))
             if perf:
                 perf.send_signal(2)
                 perf.wait()
+                if args.perf_out:
+                    shutil.copy(perf_data, args.perf_out)
         finally:
             server.kill()
             server.wait()
