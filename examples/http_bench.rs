@@ -22,7 +22,9 @@
 //! - `rss`: the server's peak RSS (VmHWM) around one request of N rays (16M), against the
 //!   request + response + structure bytes.
 //!
-//! Each mode prints Markdown table rows to stdout; progress goes to stderr.
+//! Each mode prints Markdown table rows to stdout; progress goes to stderr. Requests use a
+//! connection each (`Connection: close`) unless `--keep-alive` has them share one, as a
+//! client session does (the Python client's `requests.Session`).
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -53,7 +55,7 @@ fn main() {
 }
 
 const USAGE: &str = "usage: http_bench trace|latency|frame|rss SCENE [RAYS] [--runs N] \
-[--samples N] [--rays N] [--frames N] [--threads T] [--accel A] [--bin PATH]";
+[--samples N] [--rays N] [--frames N] [--threads T] [--accel A] [--bin PATH] [--keep-alive]";
 
 /// The command line.
 struct Opts {
@@ -67,6 +69,7 @@ struct Opts {
     threads: usize,
     accel: String,
     bin: PathBuf,
+    keep_alive: bool,
 }
 
 impl Opts {
@@ -83,6 +86,7 @@ impl Opts {
             threads: 2,
             accel: "mbvh8".into(),
             bin: Path::new(env!("CARGO_MANIFEST_DIR")).join("target/release/rayd"),
+            keep_alive: false,
         };
         let mut it = args.iter();
         while let Some(a) = it.next() {
@@ -103,6 +107,7 @@ impl Opts {
                 "--threads" => o.threads = num(a, value(a)?)?,
                 "--accel" => o.accel = value(a)?,
                 "--bin" => o.bin = value(a)?.into(),
+                "--keep-alive" => o.keep_alive = true,
                 s if s.starts_with("--") => return Err(format!("unknown option {s}")),
                 s => pos.push(s.to_string()),
             }
@@ -123,6 +128,9 @@ struct Server {
     child: Child,
     addr: String,
     _data: TempDir,
+    /// With `--keep-alive`, the connection the requests share, as a client session keeps
+    /// one (the Python client's `requests.Session` does); otherwise a connection each.
+    kept: Option<std::cell::RefCell<Option<TcpStream>>>,
 }
 
 /// A directory removed when dropped (std only: no tempfile in an example's path).
@@ -160,6 +168,7 @@ impl Server {
             child,
             addr,
             _data: data,
+            kept: o.keep_alive.then(Default::default),
         };
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_secs(30) {
@@ -173,7 +182,8 @@ impl Server {
         Err("rayd serve did not become ready in 30 s".into())
     }
 
-    /// One request on a fresh connection, timed on the client.
+    /// One request, timed on the client: on a fresh connection, or with `--keep-alive` on
+    /// the kept one (a new one if the server closed it).
     fn request(
         &self,
         method: &str,
@@ -181,13 +191,44 @@ impl Server {
         content_type: &str,
         body: &[u8],
     ) -> Result<Timed, String> {
+        let Some(kept) = &self.kept else {
+            return self.exchange(None, method, path, content_type, body).map(|(t, _)| t);
+        };
+        let reused = kept.borrow_mut().take();
+        let was_reused = reused.is_some();
+        let (timed, back) = match self.exchange(reused, method, path, content_type, body) {
+            Err(_) if was_reused => self.exchange(None, method, path, content_type, body)?,
+            other => other?,
+        };
+        *kept.borrow_mut() = back;
+        Ok(timed)
+    }
+
+    /// One request and its answer on `stream` (a new connection if `None`); the stream
+    /// comes back if it stays open.
+    fn exchange(
+        &self,
+        stream: Option<TcpStream>,
+        method: &str,
+        path: &str,
+        content_type: &str,
+        body: &[u8],
+    ) -> Result<(Timed, Option<TcpStream>), String> {
         let fail = |e: std::io::Error| format!("{method} {path}: {e}");
         let t0 = Instant::now();
-        let mut s = TcpStream::connect(&self.addr).map_err(fail)?;
-        s.set_nodelay(true).map_err(fail)?;
+        let keep = self.kept.is_some();
+        let mut s = match stream {
+            Some(s) => s,
+            None => {
+                let s = TcpStream::connect(&self.addr).map_err(fail)?;
+                s.set_nodelay(true).map_err(fail)?;
+                s
+            }
+        };
         let mut head = format!(
-            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: close\r\nContent-Length: {}\r\n",
+            "{method} {path} HTTP/1.1\r\nHost: {}\r\nConnection: {}\r\nContent-Length: {}\r\n",
             self.addr,
+            if keep { "keep-alive" } else { "close" },
             body.len()
         );
         if !content_type.is_empty() {
@@ -243,14 +284,22 @@ impl Server {
             }
         }
         let done = t0.elapsed().as_secs_f64();
-        Ok(Timed {
-            status,
-            headers,
-            body,
-            sent,
-            first: first.unwrap_or(done),
-            done,
-        })
+        let closes = length.is_none()
+            || headers
+                .iter()
+                .any(|(k, v)| k == "connection" && v.eq_ignore_ascii_case("close"));
+        let back = (keep && !closes).then_some(s);
+        Ok((
+            Timed {
+                status,
+                headers,
+                body,
+                sent,
+                first: first.unwrap_or(done),
+                done,
+            },
+            back,
+        ))
     }
 
     /// A request that must answer 2xx.

@@ -10,7 +10,7 @@ of the server and the script also prints the server's core-ms per request by thr
 (the rayon pool, the tokio HTTP threads, the trace's own thread), from the sample counts.
 
     scripts/http_trace_cpu.py SCENE RAYS [--bin target/release/rayd] [--threads 2]
-        [--requests 20] [--accel mbvh8] [--new-times] [--gap S]
+        [--requests 20] [--accel mbvh8] [--new-times] [--gap S] [--keep-alive]
         [--perf [--perf-out FILE]]
 """
 import argparse
@@ -27,12 +27,16 @@ import time
 FREQ = 2999
 
 
-def request(port, method, path, body, ctype):
-    """One request on a new connection: (answer body, header dict, phase seconds)."""
+def request(port, method, path, body, ctype, conn=None):
+    """One request on a new connection, or on `conn` (an open socket, kept open):
+    (answer body, header dict, phase seconds)."""
     t0 = time.perf_counter()
-    s = socket.create_connection(("127.0.0.1", port))
-    s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-    s.sendall(f"{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n"
+    s = conn
+    if s is None:
+        s = socket.create_connection(("127.0.0.1", port))
+        s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    close = "close" if conn is None else "keep-alive"
+    s.sendall(f"{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: {close}\r\n"
               f"Content-Length: {len(body)}\r\nContent-Type: {ctype}\r\n\r\n".encode())
     s.sendall(body)
     t1 = time.perf_counter()
@@ -58,7 +62,8 @@ def request(port, method, path, body, ctype):
             break
         have += n
     t3 = time.perf_counter()
-    s.close()
+    if conn is None:
+        s.close()
     if not lines[0].split()[1].startswith("2"):
         raise RuntimeError(f"{path}: {lines[0]} {bytes(out[:300])!r}")
     return out, headers, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)
@@ -78,6 +83,8 @@ def main():
                     help="each timed request a new time= of version 1 (an animated frame)")
     ap.add_argument("--gap", type=float, default=0.0,
                     help="seconds the server sits idle before each timed request")
+    ap.add_argument("--keep-alive", action="store_true",
+                    help="the timed requests share one connection, as a client session does")
     args = ap.parse_args()
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -108,10 +115,14 @@ def main():
                      "-o", perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
                 time.sleep(0.5)
             phases, traces = [], []
+            conn = None
+            if args.keep_alive:
+                conn = socket.create_connection(("127.0.0.1", port))
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             for k in range(args.requests):
                 time.sleep(args.gap)
                 timed = f"{path}&version=1&time={0.01 * (k + 1):.2f}" if args.new_times else path
-                _, h, t = request(port, "POST", timed, body, "application/octet-stream")
+                _, h, t = request(port, "POST", timed, body, "application/octet-stream", conn)
                 phases.append(t)
                 traces.append(float(h["server-timing"].split("trace;dur=")[1]))
             if perf:
