@@ -192,7 +192,9 @@ impl Server {
         body: &[u8],
     ) -> Result<Timed, String> {
         let Some(kept) = &self.kept else {
-            return self.exchange(None, method, path, content_type, body).map(|(t, _)| t);
+            return self
+                .exchange(None, method, path, content_type, body)
+                .map(|(t, _)| t);
         };
         let reused = kept.borrow_mut().take();
         let was_reused = reused.is_some();
