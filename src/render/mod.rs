@@ -664,8 +664,10 @@ fn render_wave(
             PathState::new(i, ray, rng, cone)
         }));
     trace_closest(frame, paths, trace, stats);
-    for (p, hit) in paths.state.iter().zip(&paths.hits) {
-        wave.covered[p.pixel] += hit.is_hit() as u32;
+    // A pixel's camera rays are `run` side by side: read its hits beside the pixel list,
+    // not each path's (much larger) state.
+    for (&pixel, hits) in pixels.iter().zip(paths.hits.chunks(run)) {
+        wave.covered[pixel as usize] += hits.iter().filter(|h| h.is_hit()).count() as u32;
     }
     if let Some(primary) = wave.primary.as_deref_mut() {
         // Sample 0 of each pixel: the first of its run.
