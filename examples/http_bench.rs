@@ -582,12 +582,13 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
     let s = Server::start(o)?;
     let id = s.upload(&o.scene)?;
     let tmp = temp_dir("frame")?;
-    let rays_path = tmp.0.join("rays.ray");
+    // With RAYS, the frame's rays are written (and read back by `rayd trace`) there.
+    let rays_path = o
+        .rays_file
+        .clone()
+        .unwrap_or_else(|| tmp.0.join("rays.ray"));
     let rays = camera_rays(&o.scene, n, Some(0.0))?;
-    std::fs::write(&rays_path, &rays).map_err(|e| e.to_string())?;
-    if let Some(keep) = &o.rays_file {
-        std::fs::write(keep, &rays).map_err(|e| format!("{}: {e}", keep.display()))?;
-    }
+    std::fs::write(&rays_path, &rays).map_err(|e| format!("{}: {e}", rays_path.display()))?;
     let octet = "application/octet-stream";
     let base = rayd::formats::load_scene(&o.scene, &Default::default())
         .map_err(|e| format!("{}: {e}", o.scene.display()))?;

@@ -11,6 +11,7 @@ of the server and the script also prints the server's core-ms per request by thr
 
     scripts/http_trace_cpu.py SCENE RAYS [--bin target/release/rayd] [--threads 2]
         [--requests 20] [--accel mbvh8] [--new-times] [--gap S] [--keep-alive]
+        [--server-log FILE]
         [--perf [--perf-out FILE]]
 """
 import argparse
@@ -85,16 +86,18 @@ def main():
                     help="seconds the server sits idle before each timed request")
     ap.add_argument("--keep-alive", action="store_true",
                     help="the timed requests share one connection, as a client session does")
+    ap.add_argument("--server-log", help="the server's stderr goes here (else nowhere)")
     args = ap.parse_args()
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     body = open(args.rays, "rb").read()
+    log = open(args.server_log, "w") if args.server_log else subprocess.DEVNULL
     with tempfile.TemporaryDirectory() as data:
         server = subprocess.Popen(
             [args.bin, "serve", "--threads", args.threads, "--data-dir", data,
              "--addr", f"127.0.0.1:{port}"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            stdout=subprocess.DEVNULL, stderr=log)
         try:
             for _ in range(100):
                 try:

@@ -426,6 +426,16 @@ impl PixelRect {
         self.len() == 0
     }
 
+    /// The columns of row `y` inside it (an empty range where the row is outside).
+    #[inline]
+    pub fn columns(&self, y: u32) -> std::ops::Range<usize> {
+        if (self.y0..self.y1).contains(&y) {
+            self.x0 as usize..self.x1 as usize
+        } else {
+            0..0
+        }
+    }
+
     /// Whether pixel `(x, y)` is inside.
     #[inline]
     pub fn contains(&self, x: u32, y: u32) -> bool {

@@ -280,8 +280,9 @@ pub fn offset_origin(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
 }
 
 /// How a caller drives a render's waves: each wave (a block of pixels for a run of
-/// [`SAMPLES_AT_ONCE`] samples, with all their bounces) runs through [`Waves::run_wave`], where the caller may hold the
-/// thread pool under a scheduler's lease, notice cancellation and report progress. Waves
+/// [`SAMPLES_AT_ONCE`] samples, with all their bounces) runs through [`Waves::run_wave`],
+/// where the caller may hold the thread pool under a scheduler's lease, notice
+/// cancellation and report progress. Waves
 /// are sized to last about [`Waves::wave_seconds`]; how the pixels are split into waves
 /// never changes the image, since each pixel and sample owns its random stream.
 pub trait Waves: Sync {
@@ -368,16 +369,18 @@ pub fn render<W: Waves + ?Sized>(
     let total = n as f64 * spp as f64;
     let mut done = 0.0;
     let run = spp.min(SAMPLES_AT_ONCE);
-    let max_wave = if accel.large_batches() {
+    let max_paths = if accel.large_batches() {
         WAVE_PATHS
     } else {
         BVH_WAVE_PATHS
-    } / run as usize;
-    let mut wave_pixels = if waves.wave_seconds().is_finite() {
-        FIRST_WAVE_PATHS / run as usize
-    } else {
-        max_wave
     };
+    // A wave's pixels each take `run` paths.
+    let pixels_for = |paths: usize| (paths.clamp(MIN_WAVE_PATHS, max_paths) / run as usize).max(1);
+    let mut wave_pixels = pixels_for(if waves.wave_seconds().is_finite() {
+        FIRST_WAVE_PATHS
+    } else {
+        max_paths
+    });
     let mut scratch = Scratch::default();
     let mut start = 0;
     while start < n {
@@ -422,13 +425,12 @@ pub fn render<W: Waves + ?Sized>(
         }
         // Size the next block's waves from this block's rate.
         let target = waves.wave_seconds();
-        wave_pixels = if target.is_finite() && seconds > 0.0 {
+        wave_pixels = pixels_for(if target.is_finite() && seconds > 0.0 {
             let rate = (end - start) as f64 * spp as f64 / seconds;
-            let paths = (rate * target) as usize;
-            (paths.clamp(MIN_WAVE_PATHS, max_wave * run as usize) / run as usize).max(1)
+            (rate * target) as usize
         } else {
-            max_wave
-        };
+            max_paths
+        });
         start = end;
     }
     let inv = 1.0 / spp as f32;
@@ -588,7 +590,8 @@ fn wrap_unit(v: f64) -> f64 {
     }
 }
 
-/// One wave: sample `s` of pixels `start..end`, accumulated into `out`.
+/// One wave: `samples` (a run of at most [`SAMPLES_AT_ONCE`]) of pixels `start..end`,
+/// accumulated into `wave`.
 fn render_wave(
     frame: Frame<'_>,
     (start, end, samples): (usize, usize, std::ops::Range<u32>),
@@ -618,20 +621,19 @@ fn render_wave(
     // already hold every sample's miss ([`fill_misses`]).
     let run = samples.len();
     pixels.clear();
-    for y in (start / w..=(end - 1) / w).filter(|y| (visible.y0..visible.y1).contains(&(*y as u32)))
-    {
+    for y in start / w..=(end - 1) / w {
         let row = (y * w).max(start)..((y + 1) * w).min(end);
-        let lit = (y * w + visible.x0 as usize).max(row.start)
-            ..(y * w + visible.x1 as usize).min(row.end);
+        let cols = visible.columns(y as u32);
+        let lit = (y * w + cols.start).max(row.start)..(y * w + cols.end).min(row.end);
         pixels.extend(lit.map(|p| (p - start) as u32));
     }
     // Path `j` is sample `samples.start + j % run` of pixel `pixels[j / run]`: a pixel's
     // samples side by side.
     let lane = |j: usize| (pixels[j / run] as usize, samples.start + (j % run) as u32);
     // The camera rays first, straight into the paths' ray list, a group of paths at a time
-    // (the last group padded with its last path), then the paths.
-    // Every ray is written below: the list keeps the last wave's rays rather than being
-    // cleared and filled again, one thread writing a megabyte a wave.
+    // (the last group padded with its last path), then the paths. Every ray is written, so
+    // the list keeps the last wave's rays rather than being cleared and filled again, one
+    // thread writing a megabyte a wave.
     paths.rays.resize(pixels.len() * run, Ray::EMPTY);
     paths
         .rays
@@ -691,8 +693,8 @@ fn render_wave(
                 }
             })
             .collect();
-        for (p, q) in paths.state.iter().step_by(run).zip(found) {
-            primary[p.pixel] = q;
+        for (&pixel, q) in pixels.iter().zip(found) {
+            primary[pixel as usize] = q;
         }
     }
     let out = &mut *wave.radiance;
@@ -1225,7 +1227,6 @@ fn shade_vertex(
     step
 }
 
-#[inline]
 /// Gives each pixel outside `visible` the sum of `spp` camera rays that miss: the sky for
 /// `path`, the background otherwise, added one sample at a time as a traced miss adds it, so
 /// the image is bit for bit the one that tracing them would give. Done once, in parallel,
@@ -1242,17 +1243,14 @@ fn fill_misses(sum: &mut [[f32; 3]], visible: PixelRect, w: usize, options: &Ren
     if total == [0.0; 3] || w == 0 {
         return;
     }
-    let (x0, x1) = (visible.x0 as usize, visible.x1 as usize);
     sum.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        if (visible.y0..visible.y1).contains(&(y as u32)) {
-            row[..x0].fill(total);
-            row[x1..].fill(total);
-        } else {
-            row.fill(total);
-        }
+        let cols = visible.columns(y as u32);
+        row[..cols.start].fill(total);
+        row[cols.end..].fill(total);
     });
 }
 
+#[inline]
 fn add(o: &mut [f32; 3], c: [f32; 3], k: f32) {
     for j in 0..3 {
         o[j] += c[j] * k;
