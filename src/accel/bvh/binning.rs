@@ -254,7 +254,7 @@ fn f32_areas(bounds: &Aabb) -> bool {
 #[inline(always)]
 fn area_of<const F32: bool>(b: &B4) -> f64 {
     if F32 {
-        let e: [f32; 4] = std::array::from_fn(|k| b.hi[k] - b.lo[k]);
+        let e = crate::simd::build4::extent_xyz(&b.lo, &b.hi);
         (e[0] * e[1] + e[1] * e[2] + e[2] * e[0]) as f64
     } else {
         half_area4(b)
