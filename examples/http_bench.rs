@@ -6,7 +6,7 @@
 //! ```text
 //! http_bench trace   SCENE RAYS [--runs N] [--threads T] [--accel A]
 //! http_bench latency SCENE [--samples N] [--threads T]
-//! http_bench frame   SCENE [RAYS] [--rays N] [--frames N] [--threads T]
+//! http_bench frame   SCENE [RAYS] [--rays N] [--frames N] [--threads T] [--accel A]
 //! http_bench rss     SCENE [--rays N] [--threads T]
 //! ```
 //!
@@ -16,8 +16,9 @@
 //! - `latency`: 1K-ray traces sent one after another while a 1024×768 path-traced render runs;
 //!   their latency percentiles, and the same with the server idle.
 //! - `frame`: frames of an animated scene, each a new animation time (`time=`) or a new
-//!   geometry version (`PUT .../geometry`) and a DACRT trace of N rays, against the same
-//!   frame in process (`rayd trace --accel dacrt`: preparation plus trace). With RAYS, the
+//!   geometry version (`PUT .../geometry`) and a trace of N rays (`dacrt` unless `--accel`
+//!   names the server's accelerator), against the same frame in process (`rayd trace
+//!   --accel dacrt`: preparation plus trace, whatever `--accel` says). With RAYS, the
 //!   frame's rays are also written there (for `scripts/http_trace_cpu.py`).
 //! - `rss`: the server's peak RSS (VmHWM) around one request of N rays (16M), against the
 //!   request + response + structure bytes.
@@ -67,7 +68,9 @@ struct Opts {
     rays: usize,
     frames: usize,
     threads: usize,
-    accel: String,
+    /// `--accel` as given: the server's accelerator (`trace`: default `mbvh8`; `frame`:
+    /// default `dacrt`, the in-process frame's).
+    accel: Option<String>,
     bin: PathBuf,
     keep_alive: bool,
 }
@@ -84,7 +87,7 @@ impl Opts {
             rays: 0,
             frames: 6,
             threads: 2,
-            accel: "mbvh8".into(),
+            accel: None,
             bin: Path::new(env!("CARGO_MANIFEST_DIR")).join("target/release/rayd"),
             keep_alive: false,
         };
@@ -105,7 +108,7 @@ impl Opts {
                 "--rays" => o.rays = num(a, value(a)?)?,
                 "--frames" => o.frames = num(a, value(a)?)?,
                 "--threads" => o.threads = num(a, value(a)?)?,
-                "--accel" => o.accel = value(a)?,
+                "--accel" => o.accel = Some(value(a)?),
                 "--bin" => o.bin = value(a)?.into(),
                 "--keep-alive" => o.keep_alive = true,
                 s if s.starts_with("--") => return Err(format!("unknown option {s}")),
@@ -120,6 +123,11 @@ impl Opts {
             return Err("--runs, --samples and --frames must be at least 1".into());
         }
         Ok(o)
+    }
+
+    /// The server's accelerator: `--accel`, else `default`.
+    fn accel<'a>(&'a self, default: &'a str) -> &'a str {
+        self.accel.as_deref().unwrap_or(default)
     }
 }
 
@@ -472,7 +480,7 @@ fn trace_mode(o: &Opts) -> Result<(), String> {
     let n = rays.len().saturating_sub(16) / 32;
     let s = Server::start(o)?;
     let id = s.upload(&o.scene)?;
-    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel);
+    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel("mbvh8"));
     let octet = "application/octet-stream";
     // Warm: the structure is built and cached by the first trace.
     let warm = s.ok("POST", &path, octet, &rays)?;
@@ -481,7 +489,7 @@ fn trace_mode(o: &Opts) -> Result<(), String> {
         (vec![], vec![], vec![], vec![], vec![], vec![]);
     for run in 0..o.runs {
         // Alternate: one in process, one over HTTP, so both see the same load.
-        let c = cli_trace(o, &o.scene, rays_file, &["--accel", &o.accel])?;
+        let c = cli_trace(o, &o.scene, rays_file, &["--accel", o.accel("mbvh8")])?;
         cli.push(c["trace_seconds"].as_f64().ok_or("no trace_seconds")?);
         let r = s.ok("POST", &path, octet, &rays)?;
         let t = r.server_timing("trace").ok_or("no Server-Timing trace")?;
@@ -522,7 +530,7 @@ fn latency_mode(o: &Opts) -> Result<(), String> {
     let s = Server::start(o)?;
     let id = s.upload(&o.scene)?;
     let rays = camera_rays(&o.scene, 1024, None)?;
-    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel);
+    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel("mbvh8"));
     let octet = "application/octet-stream";
     s.ok("POST", &path, octet, &rays)?;
     let sample = |n: usize| -> Result<Vec<f64>, String> {
@@ -609,7 +617,10 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         let time = 0.1 * k as f64;
         let r = s.ok(
             "POST",
-            &format!("/v1/scenes/{id}/trace?accel=dacrt&version=1&time={time}"),
+            &format!(
+                "/v1/scenes/{id}/trace?accel={}&version=1&time={time}",
+                o.accel("dacrt")
+            ),
             octet,
             &rays,
         )?;
@@ -642,7 +653,7 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         )?;
         let r = s.ok(
             "POST",
-            &format!("/v1/scenes/{id}/trace?accel=dacrt"),
+            &format!("/v1/scenes/{id}/trace?accel={}", o.accel("dacrt")),
             octet,
             &rays,
         )?;
@@ -689,7 +700,7 @@ fn rss_mode(o: &Opts) -> Result<(), String> {
     let s = Server::start(o)?;
     let id = s.upload(&o.scene)?;
     let octet = "application/octet-stream";
-    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel);
+    let path = format!("/v1/scenes/{id}/trace?accel={}", o.accel("mbvh8"));
     // The structure is built (and cached) by a small trace first, so the peak of the big
     // request is measured from a server that already holds it.
     s.ok("POST", &path, octet, &camera_rays(&o.scene, 1024, None)?)?;
