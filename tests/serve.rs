@@ -482,3 +482,94 @@ fn the_service_end_to_end() {
     assert!(!second.status.success());
     s.stop();
 }
+
+/// `auto` hears how fast trace bodies arrive: after one slow upload, a new scene's batch
+/// goes to `mbvh8`, which traces while the rays arrive, where the same batch in memory
+/// (`rayd trace --accel auto`) goes to DACRT, which must wait for the last ray. The answer
+/// is still `rayd trace`'s, byte for byte.
+#[test]
+fn auto_weighs_how_long_the_rays_take_to_arrive() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &[]);
+    // Two different 61,440-triangle bumpy grids, each a new scene.
+    let grid = |lift: f32| -> Vec<Triangle> {
+        let (nx, ny) = (192, 160);
+        let z =
+            |i: usize, j: usize| lift + 0.05 * ((i as f32 * 0.37).sin() + (j as f32 * 0.23).cos());
+        let p = |i: usize, j: usize| [i as f32 * 0.01, j as f32 * 0.01, z(i, j)];
+        let mut t = Vec::with_capacity(2 * nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                t.push(Triangle {
+                    v: [p(i, j), p(i + 1, j), p(i, j + 1)],
+                });
+                t.push(Triangle {
+                    v: [p(i + 1, j), p(i + 1, j + 1), p(i, j + 1)],
+                });
+            }
+        }
+        t
+    };
+    let upload = |tris: &[Triangle]| -> String {
+        let r = s.req(
+            "POST",
+            "/v1/scenes",
+            &[("Content-Type", "application/x-rayd-tri")],
+            &write_tri(tris),
+        );
+        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+        r.json()["id"].as_str().unwrap().to_string()
+    };
+    let rays = rays_at([0.0, 0.0, -0.2], [1.92, 1.6, 0.2], 1 << 18);
+    let body = write_rays(&rays);
+    let octet = [("Content-Type", "application/octet-stream")];
+
+    // The same batch over scene B in memory: DACRT.
+    let b_tris = grid(0.5);
+    let b_file = dir.path().join("b.tri");
+    std::fs::write(&b_file, write_tri(&b_tris)).unwrap();
+    let ray_file = dir.path().join("rays.ray");
+    std::fs::write(&ray_file, &body).unwrap();
+    let out = dir.path().join("b.hit");
+    let cli = Command::new(BIN)
+        .args(["trace"])
+        .arg(&b_file)
+        .arg("--rays")
+        .arg(&ray_file)
+        .arg("--out")
+        .arg(&out)
+        .args(["--accel", "auto", "--threads", "2"])
+        .output()
+        .unwrap();
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    assert_eq!(report["accel"], "dacrt-sampled", "{report}");
+
+    // Scene A's batch arrives at about 8 MB/s (8 MiB in about a second).
+    let a = upload(&grid(0.0));
+    let mut c = s
+        .open("POST", &format!("/v1/scenes/{a}/trace"), &octet, body.len())
+        .unwrap();
+    let t0 = Instant::now();
+    for (k, piece) in body.chunks(1 << 16).enumerate() {
+        c.write_all(piece).unwrap();
+        let due = Duration::from_secs_f64((k + 1) as f64 * (1 << 16) as f64 / 8e6);
+        if let Some(wait) = due.checked_sub(t0.elapsed()) {
+            std::thread::sleep(wait);
+        }
+    }
+    let r = server::read_resp(c).unwrap();
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+
+    // Scene B's batch, sent at full speed, is resolved before it arrives, as the last did.
+    let b = upload(&b_tris);
+    let r = s.req("POST", &format!("/v1/scenes/{b}/trace"), &octet, &body);
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.header("x-rayd-accel"), Some("mbvh8"));
+    assert_eq!(r.body, std::fs::read(&out).unwrap());
+}

@@ -11,6 +11,12 @@
 //!   batch partitions the triangles near the root whatever its size (the `top` term),
 //!   which is why DACRT needs large batches, and no structure outlives a batch.
 //!
+//! A batch still arriving (a request body that is uploading) adds one more input: how long
+//! until its last ray is in. A BVH core prepares, then traces each piece of rays as it
+//! arrives, so it finishes no earlier than the last ray and otherwise as the work allows;
+//! DACRT partitions the whole batch at once, so only its precompute can run during the
+//! upload and its trace starts after the last ray.
+//!
 //! Times are per thread and divided by the thread count's measured speed-up. The
 //! constants are fitted to `rayd bench --frames` measurements (BENCHMARKS.md, "auto"),
 //! which also reports how often this model picks the fastest strategy and what its wrong
@@ -52,6 +58,9 @@ pub struct Job {
     /// it, so over a sequence its build is paid once and shared by them all, while DACRT
     /// pays its preparation every frame.
     pub frames: usize,
+    /// Seconds until the batch's last ray arrives, counted from the job's start (a request
+    /// body still uploading; 0 for rays already in memory).
+    pub arrival: f64,
 }
 
 impl Job {
@@ -65,6 +74,7 @@ impl Job {
             quality,
             geometry: Geometry::New,
             frames: 1,
+            arrival: 0.0,
         }
     }
 }
@@ -165,19 +175,21 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
                 * m.trace[quality_index(job.quality)]
                 * shaped(lg, m.ray_shape[0])
                 * slow;
-            Some(
-                prep / speedup(m.speedup2[0], job.threads)
-                    + trace / speedup(m.speedup2[1], job.threads),
-            )
+            let work = prep / speedup(m.speedup2[0], job.threads)
+                + trace / speedup(m.speedup2[1], job.threads);
+            Some(work.max(job.arrival))
         }
         AccelKind::DacrtSampled => {
             let prep = m.dacrt_pre * t;
             let top = job.batches.max(1) as f64 * m.dacrt_top * t;
             let trace = r * m.dacrt_ray * shaped(lg, m.ray_shape[1]);
-            Some((prep + top + trace) / speedup(m.speedup2[2], job.threads))
+            let s = speedup(m.speedup2[2], job.threads);
+            Some((prep / s).max(job.arrival) + (top + trace) / s)
         }
         // Every ray against every triangle, eight at a time: only for a handful.
-        AccelKind::Brute => Some(r * t * 2.0e-9 / speedup(m.speedup2[1], job.threads)),
+        AccelKind::Brute => {
+            Some((r * t * 2.0e-9 / speedup(m.speedup2[1], job.threads)).max(job.arrival))
+        }
         _ => None,
     }
 }
@@ -238,6 +250,24 @@ mod tests {
             predict(AccelKind::Mbvh8, &j).unwrap()
         };
         assert!(per_frame(2) < per_frame(1) && per_frame(8) < per_frame(2));
+    }
+
+    #[test]
+    fn a_slow_upload_goes_to_the_bvh_that_traces_while_it_arrives() {
+        // The frame of `a_sequence_of_frames_shares_one_build`, whose rays are in memory,
+        // goes to DACRT. Arriving over 100 ms (16 MiB at 160 MB/s), the BVH's build and
+        // trace fit inside the upload, while DACRT's trace must follow it.
+        let mut job = Job::batch(1 << 18, 60_000, 2, BuildQuality::Sah);
+        assert_eq!(choose(&job), AccelKind::DacrtSampled);
+        job.arrival = 0.1;
+        assert_eq!(choose(&job), AccelKind::Mbvh8);
+        let bvh = predict(AccelKind::Mbvh8, &job).unwrap();
+        let dacrt = predict(AccelKind::DacrtSampled, &job).unwrap();
+        assert_eq!(bvh, 0.1, "the BVH finishes with the last ray");
+        assert!(dacrt > 0.1);
+        // A quick upload changes nothing.
+        job.arrival = 1e-4;
+        assert_eq!(choose(&job), AccelKind::DacrtSampled);
     }
 
     #[test]

@@ -491,6 +491,12 @@ impl App {
             .admit(sched::SYNC_PRIORITY, true)?)
     }
 
+    /// Notes that a trace body of `bytes` (after its first piece) took `seconds` to arrive,
+    /// for `auto`'s estimate of the next one's arrival.
+    pub fn note_upload(&self, bytes: u64, seconds: f64) {
+        self.engine().note_upload(bytes, seconds);
+    }
+
     /// Starts a synchronous trace of scene `id` (admitted with `ticket`) whose rays are
     /// still to arrive; `rays` is the count the request's length announces, if it does.
     /// Where the accelerator answers each ray on its own and the batch is large, the trace
@@ -506,7 +512,9 @@ impl App {
         let (geometry, _) = self.geometry(id, params.version, params.time).await?;
         let request = params.request();
         let engine = Arc::clone(self.engine());
-        let streamed = rays.filter(|&n| engine.streams(&geometry, &request, n));
+        // How long the body will take to arrive, as recent bodies did: `auto` weighs it.
+        let arrival = rays.map_or(0.0, |n| engine.arrival(n));
+        let streamed = rays.filter(|&n| engine.streams(&geometry, &request, n, arrival));
         let Some(count) = streamed else {
             return Ok(TraceIntake::Whole {
                 geometry,
@@ -518,7 +526,7 @@ impl App {
         let (arrive, arrivals) = std::sync::mpsc::channel();
         let done = on_trace_thread(move || {
             let control = engine.control(Default::default(), None, ticket);
-            engine.trace_stream(&geometry, &request, count, arrivals, &control)
+            engine.trace_stream(&geometry, &request, count, arrival, arrivals, &control)
         })?;
         Ok(TraceIntake::Streamed { arrive, done })
     }

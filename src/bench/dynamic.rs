@@ -216,6 +216,7 @@ fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -
                 },
                 // Each measured frame stands alone: "new" rebuilds every frame.
                 frames: 1,
+                arrival: 0.0,
             };
             let pick = auto::choose(&job);
             let Some(p) = measured.iter().find(|f| f.accel == pick.name()) else {

@@ -413,6 +413,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         quality: config.build,
                         geometry: crate::accel::auto::Geometry::New,
                         frames: 1,
+                        arrival: 0.0,
                     });
                     let options = BuildOptions { threads, ..options };
                     let mut build_times = Vec::new();

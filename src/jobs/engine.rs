@@ -1,5 +1,6 @@
 //! The engine: the pool, the cache, the scheduler, and how a job gets its structure.
 
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -84,7 +85,24 @@ pub struct Engine {
     cache: StructureCache,
     sched: Arc<Scheduler>,
     options: EngineOptions,
+    /// Seconds per byte that large request bodies have taken to arrive (the bits of an f64
+    /// running average), for `auto`'s arrival term. Times, not rates, are averaged: one
+    /// slow body must move the prediction at once, which an average of rates would bury
+    /// under the fast ones.
+    upload_cost: AtomicU64,
 }
+
+/// The upload rate assumed until a large body has been measured: loopback on the
+/// development machines moves an 8 MiB ray batch in 3–5 ms while both cores are busy
+/// (BENCHMARKS.md §12.10), about 2 GB/s. A real network is slower; the measured bodies
+/// take over after the first.
+pub const DEFAULT_UPLOAD_BYTES_PER_SECOND: f64 = 2e9;
+
+/// Bodies smaller than this say more about latency than about rate and are not measured.
+pub const MIN_MEASURED_UPLOAD_BYTES: u64 = 1 << 20;
+
+/// Weight of each new measurement in the running average of the upload's seconds per byte.
+const UPLOAD_COST_WEIGHT: f64 = 0.25;
 
 impl Engine {
     /// Starts the pool.
@@ -98,7 +116,34 @@ impl Engine {
             cache: StructureCache::new(options.cache_bytes),
             sched: Scheduler::new(options.max_queued),
             options,
+            upload_cost: AtomicU64::new((1.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).to_bits()),
         })
+    }
+
+    /// Notes that a request body of `bytes` took `seconds` to arrive (from its first piece
+    /// to its last): bodies of at least [`MIN_MEASURED_UPLOAD_BYTES`] move the running
+    /// average that [`Engine::arrival`] predicts with.
+    pub fn note_upload(&self, bytes: u64, seconds: f64) {
+        if bytes < MIN_MEASURED_UPLOAD_BYTES || !(seconds > 0.0 && seconds.is_finite()) {
+            return;
+        }
+        // Between 100 GB/s and 1 MB/s.
+        let sample = (seconds / bytes as f64).clamp(1e-11, 1e-6);
+        // A lost race between two bodies drops one sample; the average is a hint.
+        let old = f64::from_bits(self.upload_cost.load(Ordering::Relaxed));
+        let new = old + UPLOAD_COST_WEIGHT * (sample - old);
+        self.upload_cost.store(new.to_bits(), Ordering::Relaxed);
+    }
+
+    /// Bytes per second at which large bodies have been arriving, as the running average
+    /// of [`Engine::note_upload`] has it.
+    pub fn upload_rate(&self) -> f64 {
+        1.0 / f64::from_bits(self.upload_cost.load(Ordering::Relaxed))
+    }
+
+    /// Seconds a RAY1 body of `rays` rays is expected to take to arrive.
+    pub fn arrival(&self, rays: usize) -> f64 {
+        (rays as f64 * 32.0 + 16.0) * f64::from_bits(self.upload_cost.load(Ordering::Relaxed))
     }
 
     /// Threads of the pool.
@@ -207,6 +252,25 @@ impl Engine {
         batches: usize,
         frames: usize,
     ) -> AccelKind {
+        self.resolve_arriving(
+            accel, geometry, quality, precision, rays, batches, frames, 0.0,
+        )
+    }
+
+    /// [`Engine::resolve`] for rays whose last arrives `arrival` seconds after the job
+    /// starts (a request body still uploading).
+    #[allow(clippy::too_many_arguments)]
+    pub fn resolve_arriving(
+        &self,
+        accel: AccelKind,
+        geometry: &Geometry,
+        quality: BuildQuality,
+        precision: Precision,
+        rays: usize,
+        batches: usize,
+        frames: usize,
+        arrival: f64,
+    ) -> AccelKind {
         let mbvh = self.key(geometry, AccelKind::Mbvh8, quality, precision);
         accel.resolve(&auto::Job {
             rays,
@@ -216,6 +280,7 @@ impl Engine {
             quality,
             geometry: self.known(&mbvh),
             frames,
+            arrival,
         })
     }
 
@@ -258,6 +323,7 @@ impl Engine {
                 quality,
                 geometry,
                 frames: 1,
+                arrival: 0.0,
             };
             let refit = auto::predict(AccelKind::Mbvh8, &job(Known::Refittable));
             let build = auto::predict(AccelKind::Mbvh8, &job(Known::New));
@@ -287,5 +353,36 @@ impl Engine {
             build_seconds,
             source,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn measured_bodies_move_the_expected_arrival() {
+        let e = Engine::new(EngineOptions {
+            threads: 1,
+            ..Default::default()
+        })
+        .unwrap();
+        let rays = 1 << 18; // 8 MiB
+        let first = e.arrival(rays);
+        assert!((first - 8.0 * 1048576.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).abs() < 1e-4);
+        // Small, instant or broken measurements are ignored.
+        e.note_upload(1000, 1.0);
+        e.note_upload(8 << 20, 0.0);
+        e.note_upload(8 << 20, f64::NAN);
+        assert_eq!(e.arrival(rays), first);
+        // One body at 20 MB/s moves the estimate at once (a quarter of its 0.42 s for
+        // 8 MiB); more pull it there.
+        e.note_upload(20_000_000, 1.0);
+        assert!(e.arrival(rays) > 0.1);
+        for _ in 0..40 {
+            e.note_upload(20_000_000, 1.0);
+        }
+        assert!((e.upload_rate() / 20e6 - 1.0).abs() < 0.01);
+        assert!((e.arrival(rays) - 0.419).abs() < 0.01);
     }
 }

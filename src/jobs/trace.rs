@@ -130,7 +130,7 @@ impl Engine {
         invalid_rays: usize,
         control: &Control,
     ) -> Result<(HitBody, TraceReport), JobError> {
-        let kind = self.batch_accel(geometry, request, rays.len())?;
+        let kind = self.batch_accel(geometry, request, rays.len(), 0.0)?;
         let (body, prepared, trace_seconds) = control.step(|| {
             let prepared = self.batch_structure(geometry, kind, request, rays.len())?;
             let t0 = Instant::now();
@@ -257,31 +257,41 @@ pub enum Arrival {
 pub const STREAM_SEGMENT_RAYS: usize = 1 << 16;
 
 impl Engine {
-    /// Whether a trace with `request` of `rays` rays over `geometry` can start before the
-    /// whole batch has arrived: when the accelerator it resolves to answers each ray on its
-    /// own (every core but DACRT's, which partitions the whole batch at once and likes it
-    /// large), and the batch is large enough to span several segments.
-    pub fn streams(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> bool {
-        let kind = self.batch_kind(geometry, request, rays);
+    /// Whether a trace with `request` of `rays` rays over `geometry`, arriving over
+    /// `arrival` seconds ([`Engine::arrival`]), can start before the whole batch has
+    /// arrived: when the accelerator it resolves to answers each ray on its own (every core
+    /// but DACRT's, which partitions the whole batch at once and likes it large), and the
+    /// batch is large enough to span several segments. `auto` weighs the arrival: a BVH
+    /// traces while the rays upload, DACRT after.
+    pub fn streams(
+        &self,
+        geometry: &Geometry,
+        request: &TraceRequest,
+        rays: usize,
+        arrival: f64,
+    ) -> bool {
+        let kind = self.batch_kind(geometry, request, rays, arrival);
         rays > STREAM_SEGMENT_RAYS && !kind.large_batches()
     }
 
-    /// Traces a batch of `count` rays that arrives in pieces on `arrivals` (see
-    /// [`Engine::streams`]): the structure is prepared while the first rays upload, and each
+    /// Traces a batch of `count` rays that arrives in pieces on `arrivals`, expected over
+    /// `arrival` seconds (see [`Engine::streams`], told the same): the structure is prepared while the first rays upload, and each
     /// piece is validated and traced as it comes, one scheduler step each. The answer is the
     /// same, byte for byte, as [`Engine::trace`] of the whole batch after [`validate`].
     /// With `invalid=error` a bad ray stops the tracing but not the counting, so the error
     /// names the first bad ray and how many there were. If the sender goes away before
     /// [`Arrival::End`] (a broken body) the trace stops with [`JobError::Cancelled`].
+    #[allow(clippy::too_many_arguments)]
     pub fn trace_stream(
         &self,
         geometry: &Geometry,
         request: &TraceRequest,
         count: usize,
+        arrival: f64,
         arrivals: std::sync::mpsc::Receiver<Arrival>,
         control: &Control,
     ) -> Result<(HitBody, TraceReport), JobError> {
-        let kind = self.batch_accel(geometry, request, count)?;
+        let kind = self.batch_accel(geometry, request, count, arrival)?;
         let prepared = control.step(|| self.batch_structure(geometry, kind, request, count))??;
         let accel = prepared.accel.as_ref();
         let mut out = BodyWriter::new(request.hit, count);
@@ -341,9 +351,16 @@ impl Engine {
         Ok((out.finish(), report))
     }
 
-    /// What `auto` resolves a trace of one batch of `rays` rays with `request` to.
-    fn batch_kind(&self, geometry: &Geometry, request: &TraceRequest, rays: usize) -> AccelKind {
-        self.resolve(
+    /// What `auto` resolves a trace of one batch of `rays` rays with `request` to, the last
+    /// arriving `arrival` seconds after the trace starts (0 for rays in memory).
+    fn batch_kind(
+        &self,
+        geometry: &Geometry,
+        request: &TraceRequest,
+        rays: usize,
+        arrival: f64,
+    ) -> AccelKind {
+        self.resolve_arriving(
             request.accel,
             geometry,
             request.build,
@@ -351,6 +368,7 @@ impl Engine {
             rays,
             1,
             1,
+            arrival,
         )
     }
 
@@ -360,6 +378,7 @@ impl Engine {
         geometry: &Geometry,
         request: &TraceRequest,
         rays: usize,
+        arrival: f64,
     ) -> Result<AccelKind, JobError> {
         let limit = self.limits().max_rays;
         if rays > limit {
@@ -369,7 +388,7 @@ impl Engine {
                 limit: limit as u64,
             });
         }
-        Ok(self.batch_kind(geometry, request, rays))
+        Ok(self.batch_kind(geometry, request, rays, arrival))
     }
 
     /// The structure of `kind` for one batch of `rays` rays (inside a step).
@@ -547,7 +566,7 @@ mod tests {
             tx.send(Arrival::End).unwrap();
         }
         drop(tx);
-        engine.trace_stream(g, req, rays.len(), rx, &engine.detached())
+        engine.trace_stream(g, req, rays.len(), 0.0, rx, &engine.detached())
     }
 
     #[test]
@@ -628,7 +647,7 @@ mod tests {
             .unwrap();
         tx.send(Arrival::End).unwrap();
         assert!(matches!(
-            engine.trace_stream(&g, &req, 300, rx, &engine.detached()),
+            engine.trace_stream(&g, &req, 300, 0.0, rx, &engine.detached()),
             Err(JobError::Invalid { field: "rays", .. })
         ));
     }

@@ -368,11 +368,21 @@ async fn trace(
     if let Some(n) = intake.segment_rays() {
         sink = sink.segmented(n);
     }
+    // The body's arrival is timed from its first piece to its last (the bytes after the
+    // first), so that `auto` learns how fast bodies come.
+    let mut arrival: Option<(std::time::Instant, u64)> = None;
     while let Some(chunk) = reader.next_chunk().await? {
+        match &mut arrival {
+            None => arrival = Some((std::time::Instant::now(), 0)),
+            Some((_, bytes)) => *bytes += chunk.len() as u64,
+        }
         sink.push(&chunk).map_err(binary_error)?;
         for rays in sink.take_ready() {
             intake.send(rays);
         }
+    }
+    if let Some((first, bytes)) = arrival {
+        app.note_upload(bytes, first.elapsed().as_secs_f64());
     }
     let rays = sink.finish_segment().map_err(binary_error)?;
     let (hits, report) = intake.finish(rays).await?;
