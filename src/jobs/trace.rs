@@ -275,9 +275,10 @@ impl Engine {
     }
 
     /// Traces a batch of `count` rays that arrives in pieces on `arrivals`, expected over
-    /// `arrival` seconds (see [`Engine::streams`], told the same): the structure is prepared while the first rays upload, and each
-    /// piece is validated and traced as it comes, one scheduler step each. The answer is the
-    /// same, byte for byte, as [`Engine::trace`] of the whole batch after [`validate`].
+    /// `arrival` seconds (see [`Engine::streams`], told the same): the structure is
+    /// prepared while the first rays upload, and each piece is validated and traced as it
+    /// comes, one scheduler step each. The answer is the same, byte for byte, as
+    /// [`Engine::trace`] of the whole batch after [`validate`].
     /// With `invalid=error` a bad ray stops the tracing but not the counting, so the error
     /// names the first bad ray and how many there were. If the sender goes away before
     /// [`Arrival::End`] (a broken body) the trace stops with [`JobError::Cancelled`].
