@@ -335,7 +335,12 @@ async fn metrics_use_route_templates() {
     s.metrics.observe_trace(2_000_000, 0.5);
     s.metrics.observe_job("render", 1.5);
     s.metrics.cache_hit();
+    s.metrics.set_upload_rate(2.5e8);
     let text = body_text(send(&app, get("/metrics")).await).await;
+    assert!(
+        text.contains("rayd_trace_upload_bytes_per_second 250000000"),
+        "{text}"
+    );
     assert!(
         text.contains(
             r#"rayd_http_requests_total{method="GET",route="/v1/things/{id}",status="200"} 2"#

@@ -151,6 +151,7 @@ fn spawn_housekeeping(state: AppState, app: crate::app::App) {
             state.metrics.set_jobs_running(sched.running());
             let cache = app.engine().cache().stats();
             state.metrics.set_cache_bytes(cache.bytes as u64);
+            state.metrics.set_upload_rate(app.engine().upload_rate());
             n += 1;
             if n.is_multiple_of(60) {
                 let store = app.store();

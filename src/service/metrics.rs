@@ -15,7 +15,7 @@ use axum::http::{header, HeaderValue, Method};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use prometheus::{
-    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    Encoder, Gauge, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
     IntGaugeVec, Opts, Registry, TextEncoder,
 };
 
@@ -40,6 +40,7 @@ pub struct Metrics {
     cache_hits: IntCounter,
     cache_misses: IntCounter,
     cache_bytes: IntGauge,
+    upload_rate: Gauge,
     body_bytes: IntGauge,
     body_refused: IntCounterVec,
 }
@@ -179,6 +180,13 @@ impl Metrics {
                 r,
                 IntGauge::new("cache_bytes", "Bytes of acceleration structures held in the cache.")?,
             )?,
+            upload_rate: reg(
+                r,
+                Gauge::new(
+                    "trace_upload_bytes_per_second",
+                    "The rate at which auto expects trace bodies to arrive (the running average of recent bodies of 1 MiB or more).",
+                )?,
+            )?,
             body_bytes: reg(
                 r,
                 IntGauge::new(
@@ -239,6 +247,11 @@ impl Metrics {
     /// Counts a structure-cache miss.
     pub fn cache_miss(&self) {
         self.cache_misses.inc();
+    }
+
+    /// Sets the rate at which `auto` expects trace bodies to arrive.
+    pub fn set_upload_rate(&self, bytes_per_second: f64) {
+        self.upload_rate.set(bytes_per_second);
     }
 
     /// Sets the bytes held by the structure cache.
