@@ -5,7 +5,7 @@ Starts `BIN serve --threads T` on a free loopback port with a temporary data dir
 uploads SCENE, sends RAYS (a RAY1 file, e.g. from `rayd bench --dump`) as warm traces with
 a plain socket client (one `sendall` of the body, the answer read into a buffer of its
 `Content-Length`), and prints the median upload / wait / response / total times and the
-server's `Server-Timing` trace. With `--perf`, the timed requests run under `perf record`
+server's `Server-Timing` build and trace. With `--perf`, the timed requests run under `perf record`
 of the server and the script also prints the server's core-ms per request by thread name
 (the rayon pool, the tokio HTTP threads, the trace's own thread), from the sample counts.
 
@@ -16,6 +16,7 @@ of the server and the script also prints the server's core-ms per request by thr
 """
 import argparse
 import collections
+import contextlib
 import json
 import os
 import shutil
@@ -28,9 +29,36 @@ import time
 FREQ = 2999
 
 
-def request(port, method, path, body, ctype, conn=None):
+@contextlib.contextmanager
+def serve(binary, threads, log=subprocess.DEVNULL):
+    """`BINARY serve --threads THREADS` on a free loopback port with a temporary data
+    directory, once it accepts connections: yields (port, process, data directory) and
+    kills it at the end."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    with tempfile.TemporaryDirectory() as data:
+        server = subprocess.Popen(
+            [binary, "serve", "--threads", str(threads), "--data-dir", data,
+             "--addr", f"127.0.0.1:{port}"],
+            stdout=subprocess.DEVNULL, stderr=log)
+        try:
+            for _ in range(100):
+                try:
+                    socket.create_connection(("127.0.0.1", port)).close()
+                    break
+                except OSError:
+                    time.sleep(0.05)
+            yield port, server, data
+        finally:
+            server.kill()
+            server.wait()
+
+
+def request(port, method, path, body, ctype, conn=None, rate=None):
     """One request on a new connection, or on `conn` (an open socket, kept open):
-    (answer body, header dict, phase seconds)."""
+    (answer body, header dict, phase seconds). With `rate`, the body goes in 128 KiB pieces
+    at about `rate` bytes per second, as over a slow link."""
     t0 = time.perf_counter()
     s = conn
     if s is None:
@@ -39,7 +67,15 @@ def request(port, method, path, body, ctype, conn=None):
     close = "close" if conn is None else "keep-alive"
     s.sendall(f"{method} {path} HTTP/1.1\r\nHost: x\r\nConnection: {close}\r\n"
               f"Content-Length: {len(body)}\r\nContent-Type: {ctype}\r\n\r\n".encode())
-    s.sendall(body)
+    if rate is None:
+        s.sendall(body)
+    else:
+        step = 1 << 17
+        for i in range(0, len(body), step):
+            s.sendall(body[i:i + step])
+            wait = t0 + (i + step) / rate - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
     t1 = time.perf_counter()
     head = bytearray()
     while b"\r\n\r\n" not in head:
@@ -88,58 +124,44 @@ def main():
                     help="the timed requests share one connection, as a client session does")
     ap.add_argument("--server-log", help="the server's stderr goes here (else nowhere)")
     args = ap.parse_args()
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
     body = open(args.rays, "rb").read()
     log = open(args.server_log, "w") if args.server_log else subprocess.DEVNULL
-    with tempfile.TemporaryDirectory() as data:
-        server = subprocess.Popen(
-            [args.bin, "serve", "--threads", args.threads, "--data-dir", data,
-             "--addr", f"127.0.0.1:{port}"],
-            stdout=subprocess.DEVNULL, stderr=log)
-        try:
-            for _ in range(100):
-                try:
-                    socket.create_connection(("127.0.0.1", port)).close()
-                    break
-                except OSError:
-                    time.sleep(0.05)
-            scene, _, _ = request(port, "POST", "/v1/scenes", open(args.scene, "rb").read(),
-                                  "model/gltf-binary")
-            path = f"/v1/scenes/{json.loads(bytes(scene))['id']}/trace?accel={args.accel}"
-            for _ in range(3):  # warm: the structure is built and cached
-                request(port, "POST", path, body, "application/octet-stream")
-            perf_data = os.path.join(data, "perf.data")
-            perf = None
-            if args.perf:
-                perf = subprocess.Popen(
-                    ["perf", "record", "-q", "-F", str(FREQ), "-p", str(server.pid),
-                     "-o", perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-                time.sleep(0.5)
-            phases, traces = [], []
-            conn = None
-            if args.keep_alive:
-                conn = socket.create_connection(("127.0.0.1", port))
-                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            for k in range(args.requests):
-                time.sleep(args.gap)
-                timed = f"{path}&version=1&time={0.01 * (k + 1):.2f}" if args.new_times else path
-                _, h, t = request(port, "POST", timed, body, "application/octet-stream", conn)
-                phases.append(t)
-                traces.append(float(h["server-timing"].split("trace;dur=")[1]))
-            if perf:
-                perf.send_signal(2)
-                perf.wait()
-                if args.perf_out:
-                    shutil.copy(perf_data, args.perf_out)
-        finally:
-            server.kill()
-            server.wait()
+    with serve(args.bin, args.threads, log) as (port, server, data):
+        scene, _, _ = request(port, "POST", "/v1/scenes", open(args.scene, "rb").read(),
+                              "model/gltf-binary")
+        path = f"/v1/scenes/{json.loads(bytes(scene))['id']}/trace?accel={args.accel}"
+        for _ in range(3):  # warm: the structure is built and cached
+            request(port, "POST", path, body, "application/octet-stream")
+        perf_data = os.path.join(data, "perf.data")
+        perf = None
+        if args.perf:
+            perf = subprocess.Popen(
+                ["perf", "record", "-q", "-F", str(FREQ), "-p", str(server.pid),
+                 "-o", perf_data], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            time.sleep(0.5)
+        phases, traces, builds = [], [], []
+        conn = None
+        if args.keep_alive:
+            conn = socket.create_connection(("127.0.0.1", port))
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for k in range(args.requests):
+            time.sleep(args.gap)
+            timed = f"{path}&version=1&time={0.01 * (k + 1):.2f}" if args.new_times else path
+            _, h, t = request(port, "POST", timed, body, "application/octet-stream", conn)
+            phases.append(t)
+            timing = h["server-timing"]
+            traces.append(float(timing.split("trace;dur=")[1]))
+            builds.append(float(timing.split("build;dur=")[1].split(",")[0]))
+        if perf:
+            perf.send_signal(2)
+            perf.wait()
+            if args.perf_out:
+                shutil.copy(perf_data, args.perf_out)
         med = [statistics.median(c) * 1e3 for c in zip(*phases)]
         print(f"{args.bin}: {args.requests} requests, ms (median): upload {med[0]:.1f}, "
               f"wait {med[1]:.1f}, response {med[2]:.1f}, total {med[3]:.1f}; "
-              f"Server-Timing trace {statistics.median(traces):.1f}")
+              f"Server-Timing build {statistics.median(builds):.2f}, "
+              f"trace {statistics.median(traces):.1f}")
         if perf:
             report = subprocess.run(
                 ["perf", "report", "-i", perf_data, "-n", "--no-children", "--sort", "comm",

@@ -41,14 +41,15 @@ fn rays_at(bounds_min: [f32; 3], bounds_max: [f32; 3], n: usize) -> Vec<Ray> {
         .collect()
 }
 
-/// `rayd trace SCENE --rays RAYS --out OUT` with `[query, hit, accel]`: what the service's
-/// answer must equal byte for byte.
+/// `rayd trace SCENE --rays RAYS --out OUT` with `[query, hit, accel]` on the test
+/// servers' two threads: what the service's answer must equal byte for byte. Returns its
+/// report.
 fn cli_trace(
     scene: &std::path::Path,
     rays: &std::path::Path,
     out: &std::path::Path,
     [query, hit, accel]: [&str; 3],
-) {
+) -> serde_json::Value {
     let cli = Command::new(BIN)
         .arg("trace")
         .arg(scene)
@@ -57,6 +58,7 @@ fn cli_trace(
         .arg("--out")
         .arg(out)
         .args(["--query", query, "--hit", hit, "--accel", accel])
+        .args(["--threads", "2"])
         .output()
         .unwrap();
     assert!(
@@ -64,6 +66,7 @@ fn cli_trace(
         "{}",
         String::from_utf8_lossy(&cli.stderr)
     );
+    serde_json::from_slice(&cli.stdout).unwrap()
 }
 
 #[test]
@@ -532,22 +535,7 @@ fn auto_weighs_how_long_the_rays_take_to_arrive() {
     let ray_file = dir.path().join("rays.ray");
     std::fs::write(&ray_file, &body).unwrap();
     let out = dir.path().join("b.hit");
-    let cli = Command::new(BIN)
-        .args(["trace"])
-        .arg(&b_file)
-        .arg("--rays")
-        .arg(&ray_file)
-        .arg("--out")
-        .arg(&out)
-        .args(["--accel", "auto", "--threads", "2"])
-        .output()
-        .unwrap();
-    assert!(
-        cli.status.success(),
-        "{}",
-        String::from_utf8_lossy(&cli.stderr)
-    );
-    let report: serde_json::Value = serde_json::from_slice(&cli.stdout).unwrap();
+    let report = cli_trace(&b_file, &ray_file, &out, ["closest", "t_prim_uv", "auto"]);
     assert_eq!(report["accel"], "dacrt-sampled", "{report}");
 
     // Scene A's batch arrives at about 8 MB/s (8 MiB in about a second).

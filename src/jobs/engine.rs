@@ -240,27 +240,11 @@ impl Engine {
 
     /// Resolves `accel` for a job of `rays` rays in `batches` trace calls over `geometry`,
     /// the first of `frames` frames over moving positions of its triangles (1: a single
-    /// one): `auto` asks the cost model, told what the cache holds.
+    /// one), whose last ray arrives `arrival` seconds after the job starts (a request body
+    /// still uploading; 0 for rays in memory): `auto` asks the cost model, told what the
+    /// cache holds.
     #[allow(clippy::too_many_arguments)]
     pub fn resolve(
-        &self,
-        accel: AccelKind,
-        geometry: &Geometry,
-        quality: BuildQuality,
-        precision: Precision,
-        rays: usize,
-        batches: usize,
-        frames: usize,
-    ) -> AccelKind {
-        self.resolve_arriving(
-            accel, geometry, quality, precision, rays, batches, frames, 0.0,
-        )
-    }
-
-    /// [`Engine::resolve`] for rays whose last arrives `arrival` seconds after the job
-    /// starts (a request body still uploading).
-    #[allow(clippy::too_many_arguments)]
-    pub fn resolve_arriving(
         &self,
         accel: AccelKind,
         geometry: &Geometry,

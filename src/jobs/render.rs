@@ -331,6 +331,7 @@ impl Engine {
                 rays,
                 batches,
                 times.len() - k,
+                0.0,
             );
             let prepared = control.step(|| {
                 self.structure(

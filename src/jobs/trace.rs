@@ -361,7 +361,7 @@ impl Engine {
         rays: usize,
         arrival: f64,
     ) -> AccelKind {
-        self.resolve_arriving(
+        self.resolve(
             request.accel,
             geometry,
             request.build,
