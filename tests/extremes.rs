@@ -1058,6 +1058,7 @@ fn nan_and_infinite_inputs_get_errors_that_say_where() {
     use rayd::formats::binary::{read_tri, write_tri, BinaryError};
     use rayd::formats::gltf::GltfError;
     use rayd::geometry::RayError;
+    use rayd::scene::SceneError;
     // Rays: each field, first index, reason and count.
     let good = ray([0.0; 3], [0.0, 0.0, 1.0], 0.0, f32::INFINITY);
     let cases: Vec<(Ray, RayError)> = vec![
@@ -1140,7 +1141,9 @@ fn nan_and_infinite_inputs_get_errors_that_say_where() {
         &fine,
         serde_json::json!({"mesh": 0, "scale": [1.0, 10.0, 1.0]}),
     ) {
-        Err(GltfError::NonFiniteWorldPosition { vertex, .. }) => assert_eq!(vertex, 2),
+        Err(GltfError::Scene(SceneError::NonFiniteWorldPosition { vertex, .. })) => {
+            assert_eq!(vertex, 2)
+        }
         other => panic!("overflow: {other:?}"),
     }
     // A huge but finite translation is a scene like any other.

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use rayd::formats::gltf::{load, GltfError};
 use rayd::formats::LoadOptions;
-use rayd::scene::{Projection, Scene};
+use rayd::scene::{Projection, Scene, SceneError};
 use serde_json::{json, Value};
 
 fn scenes_dir() -> Option<PathBuf> {
@@ -861,13 +861,13 @@ fn joint_out_of_range_is_an_error() {
     assert!(
         matches!(
             e,
-            GltfError::JointOutOfRange {
+            GltfError::Scene(SceneError::JointOutOfRange {
                 vertex: 1,
                 joint: 5,
                 joints: 1,
                 skin: 0,
                 ..
-            }
+            })
         ),
         "{e:?}"
     );
@@ -1146,11 +1146,11 @@ fn out_of_range_index_and_non_finite_positions() {
     assert!(
         matches!(
             e,
-            GltfError::NonFiniteWorldPosition {
+            GltfError::Scene(SceneError::NonFiniteWorldPosition {
                 node: 0,
                 vertex: 1,
                 ..
-            }
+            })
         ),
         "{e:?}"
     );
@@ -1462,7 +1462,10 @@ fn other_structural_errors() {
     let mut doc = b.doc(extra.clone());
     doc["nodes"][0]["rotation"] = json!([0.0, 0.0, 0.0, 0.0]);
     let e = load_bytes(&glb(&doc, &b.bin)).unwrap_err();
-    assert!(matches!(e, GltfError::BadNode { node: 0, .. }), "{e:?}");
+    assert!(
+        matches!(e, GltfError::Scene(SceneError::BadNode { node: 0, .. })),
+        "{e:?}"
+    );
     let mut doc = b.doc(extra.clone());
     doc["nodes"][0]["camera"] = json!(0);
     doc["cameras"] = json!([{"type": "perspective"}]);
@@ -1476,7 +1479,10 @@ fn other_structural_errors() {
         },
     )
     .unwrap_err();
-    assert!(matches!(e, GltfError::BadTime(_)), "{e:?}");
+    assert!(
+        matches!(e, GltfError::Scene(SceneError::BadTime(_))),
+        "{e:?}"
+    );
 }
 
 #[test]
@@ -1500,7 +1506,10 @@ fn animation_errors() {
     // Decreasing keyframe times.
     let e = load_bytes(&file(times, out)).unwrap_err();
     assert!(
-        matches!(e, GltfError::BadAnimation { animation: 0, .. }),
+        matches!(
+            e,
+            GltfError::Scene(SceneError::BadAnimation { animation: 0, .. })
+        ),
         "{e:?}"
     );
     // Too few output values (checked with or without a time).
@@ -1508,7 +1517,7 @@ fn animation_errors() {
     assert!(
         matches!(
             e,
-            GltfError::BadAccessor { .. } | GltfError::BadAnimation { .. }
+            GltfError::BadAccessor { .. } | GltfError::Scene(SceneError::BadAnimation { .. })
         ),
         "{e:?}"
     );

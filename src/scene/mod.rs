@@ -22,8 +22,9 @@ pub use material::{
 };
 pub use rig::{Compute, Pose, Rig};
 
-/// Errors of evaluating a scene at a time. The messages are the loader's own (a file's
-/// problem is reported the same whether it shows up while loading or while evaluating).
+/// Errors of evaluating a scene at a time. The loader reports the same problems in a file
+/// as these (`GltfError::Scene`), so that a file's problem reads the same whether it shows
+/// up while loading or while evaluating.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SceneError {

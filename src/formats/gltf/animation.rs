@@ -19,7 +19,7 @@ pub(super) struct Animations {
 }
 
 fn bad(animation: usize, reason: String) -> GltfError {
-    GltfError::BadAnimation { animation, reason }
+    crate::scene::SceneError::BadAnimation { animation, reason }.into()
 }
 
 /// Checks every animation and reads its keyframes.

@@ -447,14 +447,15 @@ impl Meshes {
                 for k in 0..4 {
                     let j = set.joints[4 * v + k] as usize;
                     if set.weights[4 * v + k] != 0.0 && j >= joints {
-                        return Err(GltfError::JointOutOfRange {
+                        return Err(crate::scene::SceneError::JointOutOfRange {
                             mesh: m,
                             primitive: pi,
                             vertex: v,
                             joint: j,
                             skin: s,
                             joints,
-                        });
+                        }
+                        .into());
                     }
                 }
             }

@@ -295,34 +295,11 @@ pub enum GltfError {
         /// Element index.
         element: usize,
     },
-    /// A vertex's world position is not finite in f32 (overflow through transforms).
-    #[error("node {node} mesh {mesh} primitive {primitive}: vertex {vertex} is not finite in world space")]
-    NonFiniteWorldPosition {
-        /// Node index.
-        node: usize,
-        /// Mesh index.
-        mesh: usize,
-        /// Primitive index.
-        primitive: usize,
-        /// Vertex index.
-        vertex: usize,
-    },
-    /// A vertex is weighted to a joint the skin does not have.
-    #[error("mesh {mesh} primitive {primitive}: vertex {vertex} uses joint {joint}, but skin {skin} has {joints} joints")]
-    JointOutOfRange {
-        /// Mesh index.
-        mesh: usize,
-        /// Primitive index.
-        primitive: usize,
-        /// Vertex index.
-        vertex: usize,
-        /// The joint number.
-        joint: usize,
-        /// Skin index.
-        skin: usize,
-        /// Number of joints of the skin.
-        joints: usize,
-    },
+    /// The scene cannot be posed: a node's transform, an animation, the time, a skin's
+    /// joint or a world position that evaluation refuses. One type for these whether they
+    /// show up while loading or while evaluating a loaded scene at a new time.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
     /// The node graph has a cycle; `nodes` lists it, parent before child, first = last.
     #[error("node cycle: {}", .nodes.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(" -> "))]
     NodeCycle {
@@ -349,14 +326,6 @@ pub enum GltfError {
         /// Why.
         reason: String,
     },
-    /// A node's transform is malformed.
-    #[error("node {node}: {reason}")]
-    BadNode {
-        /// Node index.
-        node: usize,
-        /// What is wrong.
-        reason: String,
-    },
     /// A mesh primitive is malformed.
     #[error("mesh {mesh} primitive {primitive}: {reason}")]
     BadPrimitive {
@@ -375,14 +344,6 @@ pub enum GltfError {
         /// What is wrong.
         reason: String,
     },
-    /// An animation is malformed.
-    #[error("animation {animation}: {reason}")]
-    BadAnimation {
-        /// Animation index.
-        animation: usize,
-        /// What is wrong (names the channel or sampler).
-        reason: String,
-    },
     /// A camera is malformed.
     #[error("camera {camera}: {reason}")]
     BadCamera {
@@ -391,9 +352,6 @@ pub enum GltfError {
         /// What is wrong.
         reason: String,
     },
-    /// The requested animation time is NaN or infinite.
-    #[error("animation time {0} is not a finite number")]
-    BadTime(f64),
     /// A material is malformed (a factor out of range, a bad alpha mode).
     #[error("material {material}: {reason}")]
     BadMaterial {
@@ -445,45 +403,6 @@ pub enum GltfError {
     },
 }
 
-impl From<SceneError> for GltfError {
-    /// Errors of posing the scene keep the loader's variants and messages.
-    fn from(e: SceneError) -> GltfError {
-        match e {
-            SceneError::BadTime(t) => GltfError::BadTime(t),
-            SceneError::BadAnimation { animation, reason } => {
-                GltfError::BadAnimation { animation, reason }
-            }
-            SceneError::BadNode { node, reason } => GltfError::BadNode { node, reason },
-            SceneError::NonFiniteWorldPosition {
-                node,
-                mesh,
-                primitive,
-                vertex,
-            } => GltfError::NonFiniteWorldPosition {
-                node,
-                mesh,
-                primitive,
-                vertex,
-            },
-            SceneError::JointOutOfRange {
-                mesh,
-                primitive,
-                vertex,
-                joint,
-                skin,
-                joints,
-            } => GltfError::JointOutOfRange {
-                mesh,
-                primitive,
-                vertex,
-                joint,
-                skin,
-                joints,
-            },
-        }
-    }
-}
-
 /// Loads a glTF scene from the bytes of a `.glb` or `.gltf` file: geometry only (see
 /// [`load_with`]).
 ///
@@ -532,7 +451,7 @@ pub fn load_limited(
 ) -> Result<Scene, GltfError> {
     let max_triangles = max_triangles.min(MAX_TRIANGLES);
     if let Some(t) = options.time.filter(|t| !t.is_finite()) {
-        return Err(GltfError::BadTime(t));
+        return Err(SceneError::BadTime(t).into());
     }
     let container = container::split(bytes)?;
     let root = container::parse(&container)?;
