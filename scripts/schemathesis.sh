@@ -23,9 +23,9 @@ case "${1:-}" in
 esac
 
 command -v schemathesis >/dev/null || { echo "schemathesis: not installed (pip install schemathesis)" >&2; exit 1; }
-# RAYD_FEATURES: the cargo features the tests were built with (CI: embree), so that this
-# build is the binary the tests already made.
-# RAYD_BIN: a binary built elsewhere (then nothing is built here).
+# RAYD_BIN: a binary built elsewhere, used as it is (CI: target/ci/rayd, which the test
+# suite has just built). Without it, target/release/rayd is built here (if stale), with
+# the cargo features in RAYD_FEATURES (e.g. embree).
 if [ -z "${RAYD_BIN:-}" ]; then
   cargo build --release --quiet --bin rayd ${RAYD_FEATURES:+--features "$RAYD_FEATURES"}
 fi

@@ -10,7 +10,7 @@ use gltf::json::validation::Checked;
 use super::accessor::{rules, Data, Expect};
 use super::GltfError;
 use crate::scene::rig::{self, Channel, Target as Path};
-use crate::scene::AnimationInfo;
+use crate::scene::{AnimationInfo, SceneError};
 
 /// The file's animations, checked.
 pub(super) struct Animations {
@@ -19,7 +19,7 @@ pub(super) struct Animations {
 }
 
 fn bad(animation: usize, reason: String) -> GltfError {
-    crate::scene::SceneError::BadAnimation { animation, reason }.into()
+    SceneError::BadAnimation { animation, reason }.into()
 }
 
 /// Checks every animation and reads its keyframes.

@@ -14,6 +14,7 @@ use gltf::json::validation::Checked;
 use super::accessor::{rules, Data, Expect};
 use super::GltfError;
 use crate::scene::rig::{Primitive, Skin, SkinSet};
+use crate::scene::SceneError;
 
 /// Pose-independent shading attributes of a primitive (renders only).
 #[derive(Default)]
@@ -447,7 +448,7 @@ impl Meshes {
                 for k in 0..4 {
                     let j = set.joints[4 * v + k] as usize;
                     if set.weights[4 * v + k] != 0.0 && j >= joints {
-                        return Err(crate::scene::SceneError::JointOutOfRange {
+                        return Err(SceneError::JointOutOfRange {
                             mesh: m,
                             primitive: pi,
                             vertex: v,
