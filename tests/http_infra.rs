@@ -334,7 +334,18 @@ async fn metrics_use_route_templates() {
     send(&app, get("/no/such/route/123")).await;
     s.metrics.observe_trace(2_000_000, 0.5);
     s.metrics.observe_job("render", 1.5);
-    s.metrics.cache_hit();
+    s.metrics
+        .set_structure_cache(rayd::service::metrics::CacheCounts {
+            hits: 1,
+            misses: 2,
+            bytes: 3,
+        });
+    s.metrics
+        .set_texture_cache(rayd::service::metrics::CacheCounts {
+            hits: 4,
+            misses: 5,
+            bytes: 6,
+        });
     s.metrics.set_upload_rate(2.5e8);
     let text = body_text(send(&app, get("/metrics")).await).await;
     assert!(
@@ -361,7 +372,22 @@ async fn metrics_use_route_templates() {
         text.contains(r#"rayd_job_duration_seconds_count{kind="render"} 1"#),
         "{text}"
     );
+    for line in [
+        "rayd_cache_hits_total 1",
+        "rayd_cache_misses_total 2",
+        "rayd_cache_bytes 3",
+        "rayd_texture_cache_hits_total 4",
+        "rayd_texture_cache_misses_total 5",
+        "rayd_texture_cache_bytes 6",
+    ] {
+        assert!(text.contains(line), "{line}: {text}");
+    }
+    // Counters only go up: a smaller count from the source leaves them where they are.
+    s.metrics
+        .set_structure_cache(rayd::service::metrics::CacheCounts::default());
+    let text = body_text(send(&app, get("/metrics")).await).await;
     assert!(text.contains("rayd_cache_hits_total 1"), "{text}");
+    assert!(text.contains("rayd_cache_bytes 0"), "{text}");
 }
 
 #[tokio::test]
@@ -523,6 +549,61 @@ fn serve_help_documents_every_default_and_variable() {
         );
     }
     assert!(help.contains("RAYD_TOKEN_FILE") && help.contains("RAYD_DEMO"));
+}
+
+/// `proto/service.md`'s table of `rayd serve`'s options and `rayd serve --help` name the
+/// same flags, each with the same variable and default: the page cannot fall behind a new
+/// flag.
+#[test]
+fn the_option_table_is_the_help() {
+    let out = Command::new(env!("CARGO_BIN_EXE_rayd"))
+        .args(["serve", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    let page = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("proto/service.md"),
+    )
+    .unwrap();
+    let cell = |c: &str| c.trim().trim_matches('`').to_string();
+    let rows: Vec<[String; 3]> = page
+        .lines()
+        .filter(|l| l.starts_with("| `--"))
+        .map(|l| {
+            let c: Vec<&str> = l.split('|').collect();
+            // The default's first word: `1073741824` (1 GiB), `0` (all cores), none.
+            let default = cell(c[3].split(" (").next().unwrap());
+            [cell(c[1]), cell(c[2]), default]
+        })
+        .collect();
+    for [flag, var, default] in &rows {
+        let listed = help.lines().any(|l| {
+            let l = l.trim_start();
+            l == flag || l.starts_with(&format!("{flag} "))
+        });
+        assert!(listed, "{flag}: not in --help");
+        assert!(
+            help.contains(&format!("[env: {var}=")),
+            "{flag}: {var} not in --help"
+        );
+        if default.chars().all(|c| c.is_ascii_digit() || c == '.') || default.contains(':') {
+            assert!(
+                help.contains(&format!("[default: {default}]")),
+                "{flag}: default {default} not in --help"
+            );
+        }
+    }
+    let documented: Vec<&str> = rows.iter().map(|r| r[0].as_str()).collect();
+    for word in help.split_whitespace() {
+        let flag = word.trim_end_matches([',', '.']);
+        if flag.starts_with("--") && flag.len() > 2 && !["--help", "--version"].contains(&flag) {
+            let flag = flag.split(['=', '[', '<']).next().unwrap();
+            assert!(
+                documented.contains(&flag),
+                "{flag} is in --help but not in proto/service.md"
+            );
+        }
+    }
 }
 
 #[test]

@@ -69,6 +69,25 @@ fn cli_trace(
     serde_json::from_slice(&cli.stdout).unwrap()
 }
 
+/// The unlabelled series of one scrape of `/metrics`.
+struct Metrics(String);
+
+impl Metrics {
+    fn scrape(s: &Server) -> Metrics {
+        let r = s.req("GET", "/metrics", &[], &[]);
+        assert_eq!(r.status, 200);
+        Metrics(String::from_utf8(r.body).unwrap())
+    }
+
+    /// The value of series `name` (which must be there).
+    fn get(&self, name: &str) -> f64 {
+        self.0
+            .lines()
+            .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.parse().ok())
+            .unwrap_or_else(|| panic!("{name} is not in /metrics:\n{}", self.0))
+    }
+}
+
 #[test]
 fn the_service_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
@@ -365,6 +384,27 @@ fn the_service_end_to_end() {
         served.body == std::fs::read(&out).unwrap(),
         "service and CLI differ"
     );
+    // The same render again takes the scene's decoded textures from the cache (one hit,
+    // no miss) and gives the same file; repeated traces found their structures too.
+    let before = Metrics::scrape(&s);
+    let job = render(
+        r#"{"width": 24, "height": 16, "spp": 2, "format": "exr", "version": 1, "integrator": "path", "sky": [0.5, 0.7, 1.2], "aov": ["albedo", "prim"], "accel": "mbvh8", "seed": 4}"#,
+    );
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    let again = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    assert!(
+        again.body == served.body,
+        "a render from cached textures differs"
+    );
+    let after = Metrics::scrape(&s);
+    let hits = "rayd_texture_cache_hits_total";
+    let misses = "rayd_texture_cache_misses_total";
+    assert_eq!(after.get(hits), before.get(hits) + 1.0);
+    assert_eq!(after.get(misses), before.get(misses));
+    assert!(after.get(misses) >= 1.0 && after.get("rayd_texture_cache_bytes") > 0.0);
+    assert!(after.get("rayd_cache_hits_total") >= 1.0);
+    assert!(after.get("rayd_cache_misses_total") >= 1.0);
+    assert!(after.get("rayd_cache_bytes") > 0.0);
     let bad = s.req(
         "POST",
         &format!("/v1/scenes/{id}/render"),

@@ -252,6 +252,7 @@ impl Service {
                 rayd::jobs::Engine::new(rayd::jobs::EngineOptions {
                     threads: 1,
                     cache_bytes: 64 << 20,
+                    texture_bytes: 64 << 20,
                     max_queued: 8,
                     limits: rayd::jobs::Limits {
                         max_rays: 4096,

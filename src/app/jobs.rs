@@ -20,6 +20,7 @@ use crate::geometry::Ray;
 use crate::jobs::render::FrameInput;
 use crate::jobs::{sched, trace, CancelToken, JobError};
 use crate::render::surface::Surfaces;
+use crate::render::texture::TextureSet;
 use crate::store::{BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob};
 
 /// A job as the API shows it (contract §5).
@@ -530,8 +531,9 @@ impl App {
         // frame's time for version 1; later versions move positions only, so they shade
         // with the file's static normals and lights.
         let needs_surfaces = request.needs_surfaces();
-        // Decoded by the first frame, shared by the job's later ones.
-        let textures = crate::render::texture::DecodedOnce::default();
+        // Found in the engine's cache, or decoded, by the first frame that shades; held by
+        // the job for its later frames whatever the cache evicts meanwhile.
+        let textures = std::sync::OnceLock::new();
         let frame_at = |time: Option<f64>| {
             let time = time.filter(|_| version == Some(1));
             let (geometry, cameras) = rt
@@ -549,12 +551,20 @@ impl App {
                     ),
                     None => None,
                 };
-                let decoded = textures
-                    .get(&shaded)
-                    .map_err(|e| JobError::Geometry(e.to_string()))?;
+                let decoded = match textures.get() {
+                    Some(t) => Arc::clone(t),
+                    None => {
+                        let t = self
+                            .engine()
+                            .textures()
+                            .get_or_decode(&scene, || TextureSet::of(&shaded))
+                            .map_err(|e| JobError::Geometry(e.to_string()))?;
+                        Arc::clone(textures.get_or_init(|| t))
+                    }
+                };
                 Some(Arc::new(Surfaces::with_textures(
                     posed.as_ref().unwrap_or(&shaded),
-                    decoded.clone(),
+                    (*decoded).clone(),
                 )))
             } else {
                 None

@@ -313,11 +313,12 @@ impl App {
         ))
     }
 
-    /// Deletes a scene, its versions and its cached structures.
+    /// Deletes a scene, its versions, its cached structures and its decoded textures.
     pub async fn delete_scene(&self, id: &str) -> Result<(), AppError> {
         self.store().delete_scene(id).await?;
         self.inner.scenes.forget(id);
         self.engine().cache().forget_scene(id);
+        self.engine().textures().forget_scene(id);
         self.inner.thumbnails.forget(id);
         Ok(())
     }

@@ -48,6 +48,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     let engine = Arc::new(crate::jobs::Engine::new(crate::jobs::EngineOptions {
         threads: config.threads,
         cache_bytes: config.cache_bytes as usize,
+        texture_bytes: config.texture_bytes as usize,
         max_queued: config.max_queued,
         limits: crate::jobs::Limits {
             max_rays: config.max_rays as usize,
@@ -87,6 +88,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     if config.demo {
         demo(&app).await;
     }
+    state.metrics.sample_with(sampler(Arc::clone(&engine)));
     spawn_housekeeping(state.clone(), app.clone());
     state.ready.set_ready();
     tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is listening");
@@ -136,34 +138,44 @@ async fn demo(app: &crate::app::App) {
     }
 }
 
-/// Once a second: the gauges of `/metrics`; once a minute: expiry and blob collection.
+/// Once a minute: expiry and blob collection.
 fn spawn_housekeeping(state: AppState, app: crate::app::App) {
     tokio::spawn(async move {
-        let mut tick = tokio::time::interval(Duration::from_secs(1));
-        let mut n = 0u64;
+        let minute = Duration::from_secs(60);
+        let mut tick = tokio::time::interval_at(tokio::time::Instant::now() + minute, minute);
         loop {
             tokio::select! {
                 _ = tick.tick() => {}
                 _ = state.shutdown.cancelled() => break,
             }
-            let sched = app.engine().scheduler();
-            state.metrics.set_queue_length(sched.queued());
-            state.metrics.set_jobs_running(sched.running());
-            let cache = app.engine().cache().stats();
-            state.metrics.set_cache_bytes(cache.bytes as u64);
-            state.metrics.set_upload_rate(app.engine().upload_rate());
-            n += 1;
-            if n.is_multiple_of(60) {
-                let store = app.store();
-                if let Err(e) = store.expire(crate::store::now_millis()).await {
-                    tracing::warn!("expiring finished jobs failed: {e}");
-                }
-                if let Err(e) = store.gc().await {
-                    tracing::warn!("blob collection failed: {e}");
-                }
+            let store = app.store();
+            if let Err(e) = store.expire(crate::store::now_millis()).await {
+                tracing::warn!("expiring finished jobs failed: {e}");
+            }
+            if let Err(e) = store.gc().await {
+                tracing::warn!("blob collection failed: {e}");
             }
         }
     });
+}
+
+/// What `/metrics` reads of the engine at each scrape: the queue, running jobs, both
+/// caches and the upload rate `auto` expects. It holds the engine, which holds no
+/// metrics, so nothing is kept alive in a cycle.
+fn sampler(engine: Arc<crate::jobs::Engine>) -> service::metrics::Sampler {
+    Box::new(move |m| {
+        let sched = engine.scheduler();
+        m.set_queue_length(sched.queued());
+        m.set_jobs_running(sched.running());
+        let counts = |c: crate::jobs::cache::CacheStats| service::metrics::CacheCounts {
+            hits: c.hits,
+            misses: c.misses,
+            bytes: c.bytes as u64,
+        };
+        m.set_structure_cache(counts(engine.cache().stats()));
+        m.set_texture_cache(counts(engine.textures().stats()));
+        m.set_upload_rate(engine.upload_rate());
+    })
 }
 
 fn io(what: &str, source: std::io::Error) -> CliError {

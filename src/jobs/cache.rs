@@ -1,24 +1,26 @@
-//! Built accelerators, kept between jobs and shared by concurrent ones.
+//! Built accelerators and decoded textures, kept between jobs and shared by concurrent
+//! ones.
 //!
-//! The key holds everything that changes a structure's answers or its speed: which
+//! A structure's key holds everything that changes a structure's answers or its speed: which
 //! positions ([`GeometryKey`]: scene, version, time), the accelerator, its build quality,
 //! the precision, the SIMD backend and the DACRT settings. Entries are `Arc`s: a trace
 //! holds its structure for as long as it runs, whatever the cache evicts meanwhile, and a
 //! new geometry version is refitted into a copy ([`crate::accel::Intersector::refit_copy`])
 //! so that traces of the old version keep answering from the old one.
 //!
-//! The cache is bounded by a memory budget and evicts the least recently used entries.
-//! It does not make concurrent misses of one key wait for a single build: builds run on the
+//! Each cache is bounded by a memory budget and evicts the least recently used entries
+//! ([`Lru`]). The structure cache does not make concurrent misses of one key wait for a single build: builds run on the
 //! rayon pool, where blocking one worker on another's build can deadlock the pool; the
 //! scheduler already runs one step at a time, so a duplicate build can only happen between
 //! two steps, and the second finds the first's entry.
 
-use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use super::lru::Lru;
 use super::GeometryKey;
 use crate::accel::{AccelKind, BuildQuality, Intersector, Precision};
+use crate::render::texture::TextureSet;
 
 /// What a cached structure is.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -51,151 +53,148 @@ impl StructureKey {
     }
 }
 
-struct Entry {
-    accel: Arc<dyn Intersector>,
-    bytes: usize,
-    last_used: u64,
-}
-
-#[derive(Default)]
-struct State {
-    entries: HashMap<StructureKey, Entry>,
-    bytes: usize,
-    clock: u64,
-}
-
 /// Counters for `/metrics` and reports.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct CacheStats {
-    /// Lookups that found their structure.
+    /// Lookups that found their entry.
     pub hits: u64,
     /// Lookups that did not.
     pub misses: u64,
     /// Entries held.
     pub entries: usize,
-    /// Bytes held (the structures' own, beyond the positions).
+    /// Bytes held (the entries' own: a structure's beyond the positions, a scene's texels).
     pub bytes: usize,
     /// The budget.
     pub budget: usize,
 }
 
-/// The cache (see the module docs).
-pub struct StructureCache {
-    budget: usize,
-    state: Mutex<State>,
+/// An [`Lru`] behind a lock, with hit and miss counters.
+struct Counted<K, V> {
+    lru: Mutex<Lru<K, V>>,
     hits: AtomicU64,
     misses: AtomicU64,
 }
 
-impl StructureCache {
-    /// A cache that holds at most `budget` bytes of structures.
-    pub fn new(budget: usize) -> StructureCache {
-        StructureCache {
-            budget,
-            state: Mutex::new(State::default()),
+impl<K: Eq + std::hash::Hash + Clone, V: Clone> Counted<K, V> {
+    fn new(budget: usize) -> Self {
+        Counted {
+            lru: Mutex::new(Lru::new(budget)),
             hits: AtomicU64::new(0),
             misses: AtomicU64::new(0),
         }
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, State> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    fn lock(&self) -> std::sync::MutexGuard<'_, Lru<K, V>> {
+        self.lru.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The entry for `key`, if held; counts a hit or a miss.
+    fn get(&self, key: &K) -> Option<V> {
+        let found = self.lock().get(key).cloned();
+        let counter = if found.is_some() {
+            &self.hits
+        } else {
+            &self.misses
+        };
+        counter.fetch_add(1, Ordering::Relaxed);
+        found
+    }
+
+    fn stats(&self) -> CacheStats {
+        let l = self.lock();
+        CacheStats {
+            hits: self.hits.load(Ordering::Relaxed),
+            misses: self.misses.load(Ordering::Relaxed),
+            entries: l.len(),
+            bytes: l.bytes(),
+            budget: l.budget(),
+        }
+    }
+}
+
+/// Built structures under their [`StructureKey`]s.
+pub struct StructureCache(Counted<StructureKey, Arc<dyn Intersector>>);
+
+impl StructureCache {
+    /// A cache that holds at most `budget` bytes of structures.
+    pub fn new(budget: usize) -> StructureCache {
+        StructureCache(Counted::new(budget))
     }
 
     /// The structure for `key`, if held; counts a hit or a miss.
     pub fn get(&self, key: &StructureKey) -> Option<Arc<dyn Intersector>> {
-        let mut s = self.lock();
-        s.clock += 1;
-        let now = s.clock;
-        match s.entries.get_mut(key) {
-            Some(e) => {
-                e.last_used = now;
-                self.hits.fetch_add(1, Ordering::Relaxed);
-                Some(Arc::clone(&e.accel))
-            }
-            None => {
-                self.misses.fetch_add(1, Ordering::Relaxed);
-                None
-            }
-        }
+        self.0.get(key)
     }
 
     /// Whether `key` is held, without counting or touching it (for `auto`'s model).
     pub fn contains(&self, key: &StructureKey) -> bool {
-        self.lock().entries.contains_key(key)
+        self.0.lock().contains(key)
     }
 
     /// The most recently used structure of the same kind over other positions of the same
     /// scene: a refit of it gives `key`'s structure.
     pub fn refittable(&self, key: &StructureKey) -> Option<Arc<dyn Intersector>> {
-        let s = self.lock();
-        s.entries
-            .iter()
-            .filter(|(k, _)| key.same_family(k))
-            .max_by_key(|(_, e)| e.last_used)
-            .map(|(_, e)| Arc::clone(&e.accel))
+        self.0.lock().most_recent(|k| key.same_family(k)).cloned()
     }
 
     /// Keeps `accel` under `key`, evicting least recently used entries to stay within the
     /// budget. A structure larger than the whole budget is not kept.
     pub fn insert(&self, key: StructureKey, accel: Arc<dyn Intersector>) {
         let bytes = accel.bytes();
-        if bytes > self.budget {
-            return;
-        }
-        let mut s = self.lock();
-        s.clock += 1;
-        let now = s.clock;
-        if let Some(old) = s.entries.insert(
-            key,
-            Entry {
-                accel,
-                bytes,
-                last_used: now,
-            },
-        ) {
-            s.bytes -= old.bytes;
-        }
-        s.bytes += bytes;
-        while s.bytes > self.budget {
-            let Some(oldest) = s
-                .entries
-                .iter()
-                .min_by_key(|(_, e)| e.last_used)
-                .map(|(k, _)| k.clone())
-            else {
-                break;
-            };
-            let e = s.entries.remove(&oldest).expect("just found");
-            s.bytes -= e.bytes;
-        }
+        self.0.lock().insert(key, accel, bytes);
     }
 
     /// Drops every structure of `scene` (the scene was deleted).
     pub fn forget_scene(&self, scene: &str) {
-        let mut s = self.lock();
-        let gone: Vec<_> = s
-            .entries
-            .keys()
-            .filter(|k| &*k.geometry.scene == scene)
-            .cloned()
-            .collect();
-        for k in gone {
-            let e = s.entries.remove(&k).expect("just listed");
-            s.bytes -= e.bytes;
-        }
+        self.0.lock().remove_where(|k| &*k.geometry.scene == scene);
     }
 
     /// Counters and sizes.
     pub fn stats(&self) -> CacheStats {
-        let s = self.lock();
-        CacheStats {
-            hits: self.hits.load(Ordering::Relaxed),
-            misses: self.misses.load(Ordering::Relaxed),
-            entries: s.entries.len(),
-            bytes: s.bytes,
-            budget: self.budget,
+        self.0.stats()
+    }
+}
+
+/// Scenes' decoded textures (MIP pyramids and interleaved bundles), under the scene's id,
+/// kept between render jobs. Decoding DamagedHelmet's four 2048² JPEGs and building their
+/// levels takes far longer than rendering a small frame of it (BENCHMARKS.md §26), and
+/// neither a new geometry version nor an animation time changes a texel, so a scene's
+/// textures serve every later job that shades it. Concurrent first jobs of one scene may
+/// both decode; the second to finish replaces the first's entry with an equal one.
+pub struct TextureCache(Counted<Arc<str>, Arc<TextureSet>>);
+
+impl TextureCache {
+    /// A cache that holds at most `budget` bytes of texels.
+    pub fn new(budget: usize) -> TextureCache {
+        TextureCache(Counted::new(budget))
+    }
+
+    /// The textures of scene `scene`: held ones (a hit), or `decode`'s, which are kept
+    /// when they fit the budget (a miss).
+    pub fn get_or_decode<E>(
+        &self,
+        scene: &str,
+        decode: impl FnOnce() -> Result<TextureSet, E>,
+    ) -> Result<Arc<TextureSet>, E> {
+        let key: Arc<str> = Arc::from(scene);
+        if let Some(t) = self.0.get(&key) {
+            return Ok(t);
         }
+        // Decoded outside the lock: other scenes' jobs find theirs meanwhile.
+        let t = Arc::new(decode()?);
+        let bytes = t.bytes();
+        self.0.lock().insert(key, Arc::clone(&t), bytes);
+        Ok(t)
+    }
+
+    /// Drops scene `scene`'s textures (the scene was deleted).
+    pub fn forget_scene(&self, scene: &str) {
+        self.0.lock().remove_where(|k| &**k == scene);
+    }
+
+    /// Counters and sizes.
+    pub fn stats(&self) -> CacheStats {
+        self.0.stats()
     }
 }
 
@@ -245,6 +244,32 @@ mod tests {
         c.forget_scene("s");
         assert_eq!(c.stats().entries, 0);
         assert_eq!(c.stats().bytes, 0);
+    }
+
+    #[test]
+    fn textures_are_decoded_once_per_scene_within_the_budget() {
+        let c = TextureCache::new(1 << 20);
+        let decodes = std::cell::Cell::new(0);
+        let decode = || -> Result<TextureSet, ()> {
+            decodes.set(decodes.get() + 1);
+            Ok(TextureSet::default())
+        };
+        let a = c.get_or_decode("s", decode).unwrap();
+        let b = c.get_or_decode("s", decode).unwrap();
+        assert!(Arc::ptr_eq(&a, &b));
+        c.get_or_decode("t", decode).unwrap();
+        assert_eq!(decodes.get(), 2);
+        let st = c.stats();
+        assert_eq!((st.hits, st.misses, st.entries), (1, 2, 2));
+        // A failed decode keeps nothing and returns its error.
+        assert!(c
+            .get_or_decode("u", || Err::<TextureSet, _>("bad"))
+            .is_err());
+        assert_eq!(c.stats().entries, 2);
+        c.forget_scene("s");
+        assert_eq!(c.stats().entries, 1);
+        c.get_or_decode("s", decode).unwrap();
+        assert_eq!(decodes.get(), 3);
     }
 
     #[test]

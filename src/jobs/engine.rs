@@ -4,7 +4,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::cache::{StructureCache, StructureKey};
+use super::cache::{StructureCache, StructureKey, TextureCache};
 use super::sched::Scheduler;
 use super::{seconds_since, CancelToken, Control, Geometry, JobError, Limits};
 use crate::accel::auto::{self, Geometry as Known};
@@ -18,6 +18,8 @@ pub struct EngineOptions {
     pub threads: usize,
     /// Bytes of built structures the cache may hold.
     pub cache_bytes: usize,
+    /// Bytes of decoded textures the texture cache may hold.
+    pub texture_bytes: usize,
     /// Jobs that may wait to start before new work is refused.
     pub max_queued: usize,
     /// Bounds every request must fit in.
@@ -31,6 +33,7 @@ impl Default for EngineOptions {
         EngineOptions {
             threads: 0,
             cache_bytes: 2 << 30,
+            texture_bytes: 1 << 30,
             max_queued: 64,
             limits: Limits::default(),
             tuning: DacrtTuning::default(),
@@ -83,6 +86,7 @@ pub struct Prepared {
 pub struct Engine {
     pool: Arc<rayon::ThreadPool>,
     cache: StructureCache,
+    textures: TextureCache,
     sched: Arc<Scheduler>,
     options: EngineOptions,
     /// Seconds per byte that large request bodies have taken to arrive (the bits of an f64
@@ -114,6 +118,7 @@ impl Engine {
         Ok(Engine {
             pool: Arc::new(pool),
             cache: StructureCache::new(options.cache_bytes),
+            textures: TextureCache::new(options.texture_bytes),
             sched: Scheduler::new(options.max_queued),
             options,
             upload_cost: AtomicU64::new((1.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).to_bits()),
@@ -159,6 +164,11 @@ impl Engine {
     /// The structure cache.
     pub fn cache(&self) -> &StructureCache {
         &self.cache
+    }
+
+    /// The cache of scenes' decoded textures, which render jobs of the service share.
+    pub fn textures(&self) -> &TextureCache {
+        &self.textures
     }
 
     /// The scheduler.

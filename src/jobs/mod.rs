@@ -3,7 +3,8 @@
 //! call this layer; it knows no HTTP and no files, and the cores below it know neither.
 //!
 //! - [`Engine`] owns the rayon pool (sized by `--threads`), the [`cache::StructureCache`] of
-//!   built accelerators and the [`sched::Scheduler`] that orders CPU work by priority.
+//!   built accelerators, the [`cache::TextureCache`] of decoded textures and the
+//!   [`sched::Scheduler`] that orders CPU work by priority.
 //! - [`TraceRequest`] / [`trace::TraceReport`]: one batch of rays against a [`Geometry`].
 //! - [`RenderRequest`] / [`render::RenderReport`]: an image (or one per frame time).
 //! - [`Control`]: the hooks a running job is driven by: cancellation, progress, and the
@@ -12,6 +13,7 @@
 pub mod cache;
 pub mod control;
 mod engine;
+mod lru;
 pub mod render;
 pub mod sched;
 pub mod trace;

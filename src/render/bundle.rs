@@ -84,6 +84,14 @@ impl Bundle {
         })
     }
 
+    /// Bytes of texels held, every level.
+    pub fn bytes(&self) -> usize {
+        self.levels
+            .iter()
+            .map(|l| std::mem::size_of_val(&l.texels[..]))
+            .sum()
+    }
+
     /// The coordinate set its textures read.
     pub fn tex_coord(&self) -> u32 {
         self.tex_coord

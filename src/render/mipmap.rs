@@ -95,6 +95,11 @@ impl Pyramid {
         self.log2_texels_per_unit
     }
 
+    /// Bytes of texels held, every level.
+    pub fn bytes(&self) -> usize {
+        self.levels.iter().map(Texels::bytes).sum()
+    }
+
     /// Its levels, level 0 first.
     pub fn levels(&self) -> &[Texels] {
         &self.levels

@@ -160,6 +160,14 @@ impl Texels {
         self.height
     }
 
+    /// Bytes of texels held.
+    pub fn bytes(&self) -> usize {
+        match &self.texels {
+            Store::Rgba8(t) => std::mem::size_of_val(&t[..]),
+            Store::RgbaF32(t) => std::mem::size_of_val(&t[..]),
+        }
+    }
+
     /// The texels, when 8-bit.
     pub(crate) fn rgba8(&self) -> Option<&[[u8; 4]]> {
         match &self.texels {
@@ -597,6 +605,35 @@ impl TextureSet {
         }
     }
 
+    /// Bytes of texels held: every pyramid and bundle once, however many textures and
+    /// materials share it (what a cache of decoded textures accounts for).
+    pub fn bytes(&self) -> usize {
+        let mut seen: Vec<*const ()> = Vec::new();
+        let mut once = |p: *const ()| {
+            let new = !seen.contains(&p);
+            if new {
+                seen.push(p);
+            }
+            new
+        };
+        let pyramids: usize = self
+            .textures
+            .iter()
+            .flatten()
+            .flatten()
+            .filter(|(p, _)| once(Arc::as_ptr(p).cast()))
+            .map(|(p, _)| p.bytes())
+            .sum();
+        let bundles: usize = self
+            .bundles
+            .iter()
+            .flatten()
+            .filter(|b| once(Arc::as_ptr(b).cast()))
+            .map(|b| b.bytes())
+            .sum();
+        pyramids + bundles
+    }
+
     /// Material `material`'s textures interleaved, when they could be.
     pub fn bundle(&self, material: usize) -> Option<&Bundle> {
         self.bundles.get(material)?.as_deref()
@@ -676,6 +713,20 @@ impl DecodedOnce {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_texture_set_counts_each_pyramid_once() {
+        // f32 texels (16 bytes): levels of 2 × 2 and 1 × 1, a pyramid per use.
+        let one = 16 * (4 + 1);
+        let f = Filtering::of(&crate::scene::Sampler::default());
+        let set = TextureSet::from_texels(vec![(checker(), f)]);
+        assert_eq!(set.bytes(), 2 * one);
+        // A copy shares its pyramids: what a job's surfaces clone from the cache's entry.
+        let mut doubled = set.clone();
+        doubled.textures.extend(set.textures.iter().cloned());
+        assert_eq!(doubled.bytes(), 2 * one);
+        assert_eq!(TextureSet::default().bytes(), 0);
+    }
 
     fn checker() -> Texels {
         // 2×2: black, white / white, black (linear values).

@@ -82,6 +82,11 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_CACHE_BYTES", default_value_t = 4 << 30)]
     pub cache_bytes: u64,
 
+    /// Bytes of decoded textures (a scene's MIP pyramids) kept in memory for reuse by later
+    /// render jobs of the same scene (1 GiB); the least recently used go first.
+    #[arg(long, env = "RAYD_TEXTURE_BYTES", default_value_t = 1 << 30)]
+    pub texture_bytes: u64,
+
     /// Bytes of evaluated geometry (a scene's positions per version and animation time)
     /// kept in memory for reuse (1 GiB). Each `PUT .../geometry` and each new `time=`
     /// adds an entry; the least recently used go first.

@@ -8,6 +8,7 @@
 //! because the latter writes OpenMetrics, whose counters promtool 2.x misreads as untyped
 //! series without help text.
 
+use std::sync::{Arc, OnceLock};
 use std::time::Instant;
 
 use axum::extract::{MatchedPath, Request, State};
@@ -40,9 +41,29 @@ pub struct Metrics {
     cache_hits: IntCounter,
     cache_misses: IntCounter,
     cache_bytes: IntGauge,
+    texture_hits: IntCounter,
+    texture_misses: IntCounter,
+    texture_bytes: IntGauge,
     upload_rate: Gauge,
     body_bytes: IntGauge,
     body_refused: IntCounterVec,
+    /// What reads the domain's state into the metrics when they are scraped.
+    sampler: Arc<OnceLock<Sampler>>,
+}
+
+/// Reads state that changes without a request passing by (the queue, the caches) into
+/// the metrics, each time `/metrics` is read.
+pub type Sampler = Box<dyn Fn(&Metrics) + Send + Sync>;
+
+/// A cache's counters and size, as the domain layer reports them when sampled.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CacheCounts {
+    /// Lookups that found their entry, since the start.
+    pub hits: u64,
+    /// Lookups that did not, since the start.
+    pub misses: u64,
+    /// Bytes held now.
+    pub bytes: u64,
 }
 
 impl std::fmt::Debug for Metrics {
@@ -180,6 +201,27 @@ impl Metrics {
                 r,
                 IntGauge::new("cache_bytes", "Bytes of acceleration structures held in the cache.")?,
             )?,
+            texture_hits: reg(
+                r,
+                IntCounter::new(
+                    "texture_cache_hits_total",
+                    "Render jobs that found their scene's decoded textures in the cache.",
+                )?,
+            )?,
+            texture_misses: reg(
+                r,
+                IntCounter::new(
+                    "texture_cache_misses_total",
+                    "Render jobs that decoded their scene's textures.",
+                )?,
+            )?,
+            texture_bytes: reg(
+                r,
+                IntGauge::new(
+                    "texture_cache_bytes",
+                    "Bytes of decoded textures held in the texture cache.",
+                )?,
+            )?,
             upload_rate: reg(
                 r,
                 Gauge::new(
@@ -205,7 +247,14 @@ impl Metrics {
                 )?,
             )?,
             registry,
+            sampler: Arc::new(OnceLock::new()),
         })
+    }
+
+    /// Sets what reads the domain's state into the metrics before each scrape (once per
+    /// server; a second call is ignored).
+    pub fn sample_with(&self, sampler: Sampler) {
+        let _ = self.sampler.set(sampler);
     }
 
     /// The registry, for metrics defined elsewhere (they get the `rayd_` prefix).
@@ -239,24 +288,23 @@ impl Metrics {
         }
     }
 
-    /// Counts a structure-cache hit.
-    pub fn cache_hit(&self) {
-        self.cache_hits.inc();
+    /// Sets the structure cache's counters and size.
+    pub fn set_structure_cache(&self, c: CacheCounts) {
+        catch_up(&self.cache_hits, c.hits);
+        catch_up(&self.cache_misses, c.misses);
+        self.cache_bytes.set(c.bytes.min(i64::MAX as u64) as i64);
     }
 
-    /// Counts a structure-cache miss.
-    pub fn cache_miss(&self) {
-        self.cache_misses.inc();
+    /// Sets the texture cache's counters and size.
+    pub fn set_texture_cache(&self, c: CacheCounts) {
+        catch_up(&self.texture_hits, c.hits);
+        catch_up(&self.texture_misses, c.misses);
+        self.texture_bytes.set(c.bytes.min(i64::MAX as u64) as i64);
     }
 
     /// Sets the rate at which `auto` expects trace bodies to arrive.
     pub fn set_upload_rate(&self, bytes_per_second: f64) {
         self.upload_rate.set(bytes_per_second);
-    }
-
-    /// Sets the bytes held by the structure cache.
-    pub fn set_cache_bytes(&self, bytes: u64) {
-        self.cache_bytes.set(bytes.min(i64::MAX as u64) as i64);
     }
 
     /// Counts a request refused with 503 before any work, for `reason`.
@@ -274,11 +322,23 @@ impl Metrics {
         self.connections.add(delta);
     }
 
-    /// Every metric in the text exposition format.
+    /// Every metric in the text exposition format, the sampled ones read now.
     pub fn encode(&self) -> Result<String, MetricsError> {
+        if let Some(sample) = self.sampler.get() {
+            sample(self);
+        }
         let mut buf = Vec::new();
         TextEncoder::new().encode(&self.registry.gather(), &mut buf)?;
         Ok(String::from_utf8_lossy(&buf).into_owned())
+    }
+}
+
+/// Moves counter `c` up to `total`, a count the domain layer keeps itself (a counter
+/// only goes up: a smaller total, which a monotonic source never reports, changes nothing).
+fn catch_up(c: &IntCounter, total: u64) {
+    let now = c.get();
+    if total > now {
+        c.inc_by(total - now);
     }
 }
 
