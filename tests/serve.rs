@@ -601,3 +601,96 @@ fn auto_weighs_how_long_the_rays_take_to_arrive() {
     assert_eq!(r.header("x-rayd-accel"), Some("mbvh8"));
     assert_eq!(r.body, std::fs::read(&out).unwrap());
 }
+
+/// With `--geometry-bytes 1` the server keeps only the scene (or positions) in use in
+/// memory: every other is dropped and parsed again from the store when asked for. Answers
+/// do not change: traces of version 1, of a `time=` pose and of a stored version 2 give
+/// the same bytes after their scene was evicted, and a shaded render the same file.
+#[test]
+fn scenes_evicted_from_memory_come_back_from_the_store() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--geometry-bytes", "1"]);
+    let upload = |file: &str| {
+        let bytes = std::fs::read(scenes().join(file)).unwrap();
+        let r = s.req(
+            "POST",
+            "/v1/scenes",
+            &[("Content-Type", "model/gltf-binary")],
+            &bytes,
+        );
+        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+        r.json()
+    };
+    let fox = upload("Fox.glb");
+    let other = upload("BoxAnimated.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let other_id = other["id"].as_str().unwrap().to_string();
+    let min: Vec<f32> = serde_json::from_value(fox["bounds"]["min"].clone()).unwrap();
+    let max: Vec<f32> = serde_json::from_value(fox["bounds"]["max"].clone()).unwrap();
+    let body = write_rays(&rays_at(
+        [min[0], min[1], min[2]],
+        [max[0], max[1], max[2]],
+        2000,
+    ));
+    let octet = [("Content-Type", "application/octet-stream")];
+    let trace = |scene: &str, query: &str| {
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{scene}/trace?accel=bvh2{query}"),
+            &octet,
+            &body,
+        );
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        r.body
+    };
+    // Version 2: the fox's positions moved up by one unit.
+    let geometry = s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[]);
+    assert_eq!(geometry.status, 200);
+    let mut tris = rayd::formats::binary::read_tri(&geometry.body).unwrap();
+    for t in &mut tris {
+        for v in &mut t.v {
+            v[1] += 1.0;
+        }
+    }
+    let put = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        &write_tri(&tris),
+    );
+    assert_eq!(put.status, 200, "{}", String::from_utf8_lossy(&put.body));
+    let render = || {
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/render"),
+            &[("Content-Type", "application/json")],
+            br#"{"width": 16, "height": 12, "spp": 1, "integrator": "path", "version": 1, "time": 0.5}"#,
+        );
+        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+        let job = r.json()["id"].as_str().unwrap().to_string();
+        assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+        s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[])
+            .body
+    };
+    let first = [
+        trace(&id, "&version=1"),
+        trace(&id, "&version=1&time=0.5"),
+        trace(&id, "&version=2"),
+        render(),
+    ];
+    assert_ne!(first[0], first[2], "version 2 moved the fox");
+    // Another scene's work evicts everything of the fox's from memory, each time.
+    for (k, want) in first.iter().enumerate() {
+        trace(&other_id, "");
+        let again = match k {
+            0 => trace(&id, "&version=1"),
+            1 => trace(&id, "&version=1&time=0.5"),
+            2 => trace(&id, "&version=2"),
+            _ => render(),
+        };
+        assert!(
+            &again == want,
+            "answer {k} changed after its scene was evicted"
+        );
+    }
+}

@@ -6,7 +6,6 @@
 //! loader is given no directory, so an uploaded document can never make the server open a
 //! file it names.
 
-use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use serde::Serialize;
@@ -16,6 +15,7 @@ use super::{App, AppError, TraceParams};
 use crate::formats::binary::{read_tri, tri_count};
 use crate::formats::{LoadOptions, Parts};
 use crate::geometry::{RaySegment, Triangle};
+use crate::jobs::lru::Lru;
 use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
 use crate::scene::Scene;
 use crate::store::{BlobId, NewScene, SceneRecord};
@@ -177,76 +177,92 @@ struct Loaded {
     shaded: std::sync::OnceLock<Arc<Scene>>,
 }
 
-/// Parsed scenes and evaluated geometry, in memory.
-pub(super) struct SceneCache {
-    budget: usize,
-    state: Mutex<CacheState>,
-}
-
-#[derive(Default)]
-struct CacheState {
-    loaded: HashMap<String, Arc<Loaded>>,
-    geometry: HashMap<GeometryKey, (Arc<Vec<Triangle>>, Cameras, u64)>,
-    bytes: usize,
-    clock: u64,
-}
-
-impl SceneCache {
-    pub(super) fn new(budget: usize) -> SceneCache {
-        SceneCache {
-            budget,
-            state: Mutex::new(CacheState::default()),
+impl Loaded {
+    fn new(scene: Scene) -> Loaded {
+        Loaded {
+            scene: Arc::new(scene),
+            shaded: std::sync::OnceLock::new(),
         }
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, CacheState> {
-        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    /// Bytes held: both parses, every part.
+    fn bytes(&self) -> usize {
+        let total = |s: &Scene| {
+            let p = s.bytes_by_part();
+            p.positions + p.attributes + p.textures + p.animation
+        };
+        total(&self.scene) + self.shaded.get().map_or(0, |s| total(s))
+    }
+}
+
+/// What the scene cache holds: a parsed scene, or positions evaluated for a key.
+#[derive(Clone, PartialEq, Eq, Hash)]
+enum CacheKey {
+    Scene(Arc<str>),
+    Geometry(GeometryKey),
+}
+
+impl CacheKey {
+    fn scene(&self) -> &str {
+        match self {
+            CacheKey::Scene(id) => id,
+            CacheKey::Geometry(k) => &k.scene,
+        }
+    }
+}
+
+#[derive(Clone)]
+enum Held {
+    Scene(Arc<Loaded>),
+    Geometry(Arc<Vec<Triangle>>, Cameras),
+}
+
+/// Parsed scenes and evaluated geometry, in memory, within one budget
+/// (`--geometry-bytes`): the least recently used go first, and come back from the stored
+/// bytes when asked for again. The one in use is kept even when it alone is larger.
+pub(super) struct SceneCache(Mutex<Lru<CacheKey, Held>>);
+
+impl SceneCache {
+    pub(super) fn new(budget: usize) -> SceneCache {
+        SceneCache(Mutex::new(Lru::keeping_one(budget)))
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, Lru<CacheKey, Held>> {
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn loaded(&self, id: &str) -> Option<Arc<Loaded>> {
+        match self.lock().get(&CacheKey::Scene(Arc::from(id)))? {
+            Held::Scene(l) => Some(Arc::clone(l)),
+            Held::Geometry(..) => None,
+        }
+    }
+
+    /// Keeps `loaded` as scene `id` (again, after its shaded parse: its size grew).
+    fn keep_loaded(&self, id: &str, loaded: Arc<Loaded>) {
+        let bytes = loaded.bytes();
+        self.lock()
+            .insert(CacheKey::Scene(Arc::from(id)), Held::Scene(loaded), bytes);
     }
 
     fn geometry(&self, key: &GeometryKey) -> Option<(Arc<Vec<Triangle>>, Cameras)> {
-        let mut s = self.lock();
-        s.clock += 1;
-        let now = s.clock;
-        s.geometry.get_mut(key).map(|(g, c, used)| {
-            *used = now;
-            (Arc::clone(g), Arc::clone(c))
-        })
+        match self.lock().get(&CacheKey::Geometry(key.clone()))? {
+            Held::Geometry(g, c) => Some((Arc::clone(g), Arc::clone(c))),
+            Held::Scene(_) => None,
+        }
     }
 
     fn keep_geometry(&self, key: GeometryKey, tris: Arc<Vec<Triangle>>, cameras: Cameras) {
         let bytes = std::mem::size_of_val(&tris[..]);
-        let mut s = self.lock();
-        s.clock += 1;
-        let now = s.clock;
-        if let Some((old, _, _)) = s.geometry.insert(key, (tris, cameras, now)) {
-            s.bytes -= std::mem::size_of_val(&old[..]);
-        }
-        s.bytes += bytes;
-        while s.bytes > self.budget && s.geometry.len() > 1 {
-            let oldest = s
-                .geometry
-                .iter()
-                .min_by_key(|(_, (_, _, used))| *used)
-                .map(|(k, _)| k.clone())
-                .expect("not empty");
-            let (g, _, _) = s.geometry.remove(&oldest).expect("just found");
-            s.bytes -= std::mem::size_of_val(&g[..]);
-        }
+        self.lock().insert(
+            CacheKey::Geometry(key),
+            Held::Geometry(tris, cameras),
+            bytes,
+        );
     }
 
     fn forget(&self, scene: &str) {
-        let mut s = self.lock();
-        s.loaded.remove(scene);
-        let keys: Vec<_> = s
-            .geometry
-            .keys()
-            .filter(|k| &*k.scene == scene)
-            .cloned()
-            .collect();
-        for k in keys {
-            let (g, _, _) = s.geometry.remove(&k).expect("listed");
-            s.bytes -= std::mem::size_of_val(&g[..]);
-        }
+        self.lock().remove_where(|k| k.scene() == scene);
     }
 }
 
@@ -283,13 +299,9 @@ impl App {
                 summary,
             })
             .await?;
-        self.inner.scenes.lock().loaded.insert(
-            record.id.clone(),
-            Arc::new(Loaded {
-                scene: Arc::new(scene),
-                shaded: std::sync::OnceLock::new(),
-            }),
-        );
+        self.inner
+            .scenes
+            .keep_loaded(&record.id, Arc::new(Loaded::new(scene)));
         // In the background, at the lowest priority: the answer does not wait for it.
         self.queue_thumbnail(&record.id);
         Ok((SceneView::from_record(record), created))
@@ -337,20 +349,13 @@ impl App {
 
     /// The parsed static pose of scene `id`, parsing the stored bytes after a restart.
     async fn loaded(&self, id: &str) -> Result<Arc<Loaded>, AppError> {
-        if let Some(l) = self.inner.scenes.lock().loaded.get(id) {
-            return Ok(Arc::clone(l));
+        if let Some(l) = self.inner.scenes.loaded(id) {
+            return Ok(l);
         }
         let (kind, bytes) = self.stored(id).await?;
         let scene = self.cpu(move || parse(kind, &bytes, STORED_MAX)).await??;
-        let loaded = Arc::new(Loaded {
-            scene: Arc::new(scene),
-            shaded: std::sync::OnceLock::new(),
-        });
-        self.inner
-            .scenes
-            .lock()
-            .loaded
-            .insert(id.to_string(), Arc::clone(&loaded));
+        let loaded = Arc::new(Loaded::new(scene));
+        self.inner.scenes.keep_loaded(id, Arc::clone(&loaded));
         Ok(loaded)
     }
 
@@ -364,7 +369,10 @@ impl App {
         let scene = self
             .cpu(move || parse_with(kind, &bytes, Parts::Shading, STORED_MAX))
             .await??;
-        Ok(Arc::clone(loaded.shaded.get_or_init(|| Arc::new(scene))))
+        let shaded = Arc::clone(loaded.shaded.get_or_init(|| Arc::new(scene)));
+        // Counted again with its shaded parse.
+        self.inner.scenes.keep_loaded(id, loaded);
+        Ok(shaded)
     }
 
     /// Stores new positions for every triangle of scene `id` as its next version.

@@ -1,7 +1,8 @@
 //! A map bounded by the bytes of what it holds, which evicts its least recently used
 //! entries: the bookkeeping that the engine's caches of built structures
 //! ([`super::cache::StructureCache`]) and decoded textures ([`super::cache::TextureCache`])
-//! share. It is not synchronised; each cache keeps it behind its own lock.
+//! and the service's parsed scenes and evaluated geometry share. It is not synchronised;
+//! each cache keeps it behind its own lock.
 
 use std::collections::HashMap;
 use std::hash::Hash;
@@ -15,6 +16,8 @@ struct Slot<V> {
 /// Entries of `V` under keys `K`, each with its size in bytes, at most `budget` bytes in all.
 pub struct Lru<K, V> {
     budget: usize,
+    /// Whether an entry larger than the budget is kept (alone) rather than refused.
+    keep_one: bool,
     entries: HashMap<K, Slot<V>>,
     bytes: usize,
     clock: u64,
@@ -25,9 +28,20 @@ impl<K: Eq + Hash + Clone, V> Lru<K, V> {
     pub fn new(budget: usize) -> Lru<K, V> {
         Lru {
             budget,
+            keep_one: false,
             entries: HashMap::new(),
             bytes: 0,
             clock: 0,
+        }
+    }
+
+    /// An empty map that holds at most `budget` bytes, or its one most recently used entry
+    /// when that alone is larger: for what every request needs again (a scene too large
+    /// for the budget is still kept while it is the one in use).
+    pub fn keeping_one(budget: usize) -> Lru<K, V> {
+        Lru {
+            keep_one: true,
+            ..Lru::new(budget)
         }
     }
 
@@ -47,9 +61,10 @@ impl<K: Eq + Hash + Clone, V> Lru<K, V> {
 
     /// Keeps `value` of `bytes` bytes under `key` (replacing what was there), then evicts
     /// the least recently used entries until the map is within its budget. A value larger
-    /// than the whole budget is not kept: `false`.
+    /// than the whole budget is not kept (`false`), unless the map keeps one
+    /// ([`Lru::keeping_one`]): then it is kept alone.
     pub fn insert(&mut self, key: K, value: V, bytes: usize) -> bool {
-        if bytes > self.budget {
+        if bytes > self.budget && !self.keep_one {
             return false;
         }
         self.clock += 1;
@@ -62,8 +77,8 @@ impl<K: Eq + Hash + Clone, V> Lru<K, V> {
             self.bytes -= old.bytes;
         }
         self.bytes += bytes;
-        while self.bytes > self.budget {
-            // The new entry is the most recent and fits alone, so another goes first.
+        while self.bytes > self.budget && self.entries.len() > 1 {
+            // The new entry is the most recent, so another goes first.
             let Some(oldest) = self
                 .entries
                 .iter()
@@ -142,6 +157,19 @@ mod tests {
         assert_eq!((m.len(), m.bytes()), (1, 4));
         m.remove_where(|_| true);
         assert!(m.len() == 0 && m.bytes() == 0 && m.budget() == 10);
+    }
+
+    #[test]
+    fn keeping_one_keeps_the_newest_alone_when_it_is_too_large() {
+        let mut m = Lru::keeping_one(10);
+        assert!(m.insert("a", 1, 4));
+        assert!(m.insert("b", 2, 4));
+        assert!(m.insert("big", 3, 25));
+        assert_eq!((m.len(), m.bytes()), (1, 25));
+        assert_eq!(m.get(&"big"), Some(&3));
+        // The next entry evicts it as usual.
+        assert!(m.insert("c", 4, 4));
+        assert_eq!((m.len(), m.bytes()), (1, 4));
     }
 
     #[test]

@@ -13,7 +13,7 @@
 pub mod cache;
 pub mod control;
 mod engine;
-mod lru;
+pub(crate) mod lru;
 pub mod render;
 pub mod sched;
 pub mod trace;

@@ -87,9 +87,10 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_TEXTURE_BYTES", default_value_t = 1 << 30)]
     pub texture_bytes: u64,
 
-    /// Bytes of evaluated geometry (a scene's positions per version and animation time)
-    /// kept in memory for reuse (1 GiB). Each `PUT .../geometry` and each new `time=`
-    /// adds an entry; the least recently used go first.
+    /// Bytes of parsed scenes and evaluated geometry (a scene's positions per version and
+    /// animation time) kept in memory for reuse (1 GiB). Each upload, `PUT .../geometry`
+    /// and new `time=` adds an entry; the least recently used go first and are read again
+    /// from the data directory when next needed.
     #[arg(long, env = "RAYD_GEOMETRY_BYTES", default_value_t = 1 << 30)]
     pub geometry_bytes: u64,
 
