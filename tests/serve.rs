@@ -390,7 +390,9 @@ fn the_service_end_to_end() {
     let job = render(
         r#"{"width": 24, "height": 16, "spp": 2, "format": "exr", "version": 1, "integrator": "path", "sky": [0.5, 0.7, 1.2], "aov": ["albedo", "prim"], "accel": "mbvh8", "seed": 4}"#,
     );
-    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    let j = wait_job(&s, &job, 60);
+    assert_eq!(j["state"], "succeeded");
+    let render_rays = j["stats"]["rays"].as_f64().unwrap();
     let again = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
     assert!(
         again.body == served.body,
@@ -401,6 +403,9 @@ fn the_service_end_to_end() {
     let misses = "rayd_texture_cache_misses_total";
     assert_eq!(after.get(hits), before.get(hits) + 1.0);
     assert_eq!(after.get(misses), before.get(misses));
+    // A render's rays count among the rays traced.
+    let traced = "rayd_rays_traced_total";
+    assert!(render_rays > 0.0 && after.get(traced) == before.get(traced) + render_rays);
     assert!(after.get(misses) >= 1.0 && after.get("rayd_texture_cache_bytes") > 0.0);
     assert!(after.get("rayd_cache_hits_total") >= 1.0);
     assert!(after.get("rayd_cache_misses_total") >= 1.0);
@@ -693,4 +698,43 @@ fn scenes_evicted_from_memory_come_back_from_the_store() {
             "answer {k} changed after its scene was evicted"
         );
     }
+}
+
+/// SIGTERM while a render runs: the server refuses new work, lets the render finish within
+/// `--grace` (the test servers' 2 s; the render takes a few tenths), records its end, and
+/// only then exits; after a restart the job is `succeeded` with its result, not queued
+/// again.
+#[test]
+fn sigterm_lets_a_running_render_finish_within_the_grace_period() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let s = Server::start(&data, &[]);
+    let fox = std::fs::read(scenes().join("Fox.glb")).unwrap();
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        &fox,
+    );
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        br#"{"width": 256, "height": 256, "spp": 48, "integrator": "path"}"#,
+    );
+    assert_eq!(r.status, 202);
+    let job = r.json()["id"].as_str().unwrap().to_string();
+    let t0 = Instant::now();
+    while s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json()["state"] != "running" {
+        assert!(t0.elapsed() < Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // `stop` sends SIGTERM and waits for the exit.
+    s.stop();
+    let s = Server::start(&data, &[]);
+    let j = s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json();
+    assert_eq!(j["state"], "succeeded", "{j}");
+    let png = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    assert_eq!((png.status, &png.body[1..4]), (200, &b"PNG"[..]));
 }

@@ -166,6 +166,7 @@ async fn child(dir: &Path) {
                 request: "{}".into(),
                 priority: (i % 101) as u8,
                 idempotency_key: Some(format!("key-{}", rng.next())),
+                input_blob: None,
             })
             .await
             .unwrap();

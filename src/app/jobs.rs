@@ -200,6 +200,7 @@ impl App {
             request: serde_json::to_string(&spec).expect("a spec serialises"),
             priority,
             idempotency_key,
+            input_blob: None,
         };
         let (record, created) = self.store().create_job(new).await?;
         if created {
@@ -247,6 +248,7 @@ impl App {
                 request: serde_json::to_string(&request).expect("serialises"),
                 priority: 50,
                 idempotency_key: None,
+                input_blob: Some(rays_blob.clone()),
             })
             .await?;
         self.start(record.clone(), Work::Trace(request), ticket);
@@ -444,7 +446,8 @@ impl App {
             Work::Render(spec) => self.run_render(&record, &spec, &control),
             Work::Trace(req) => self.run_trace(&record, &req, &control),
         };
-        drop(control);
+        // `control` holds the job's place in the scheduler until the end of this function:
+        // the job counts as running until its end is recorded, which a shutdown waits for.
         let ran = ran_from.get().map_or(0.0, |t| t.elapsed().as_secs_f64());
         let observe = |state: JobState| {
             if let Some(o) = &self.inner.observer {
@@ -587,6 +590,10 @@ impl App {
         let report = self
             .engine()
             .render(&request, &times, &frame_at, control, &mut emit)?;
+        // Every ray a render traced counts, as a trace's do.
+        if let Some(o) = &self.inner.observer {
+            o.traced(report.rays, report.trace_seconds);
+        }
         Ok((serde_json::to_value(report).expect("serialises"), results))
     }
 

@@ -90,6 +90,16 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     }
     state.metrics.sample_with(sampler(Arc::clone(&engine)));
     spawn_housekeeping(state.clone(), app.clone());
+    // The signal reaches the engine at once: no job starts from then on, and the ones
+    // running get what is left of the grace period once the connections have drained.
+    let signalled = {
+        let (shutdown, sched) = (state.shutdown.clone(), Arc::clone(engine.scheduler()));
+        tokio::spawn(async move {
+            shutdown.cancelled().await;
+            sched.shut_down();
+            std::time::Instant::now()
+        })
+    };
     state.ready.set_ready();
     tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is listening");
     let stopped = service::serve(
@@ -102,13 +112,34 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     )
     .await
     .map_err(|source| io("serving failed", source))?;
-    // No new work; running jobs had the grace period to finish. Flush the store.
+    // No new work. Running jobs finish within the grace period (counted from the
+    // signal); one still running then stays `running` in the store, and the next start
+    // runs it again from the beginning.
     engine.scheduler().shut_down();
+    let since = if signalled.is_finished() {
+        signalled
+            .await
+            .unwrap_or_else(|_| std::time::Instant::now())
+    } else {
+        std::time::Instant::now()
+    };
+    let deadline = since + config.grace();
+    while engine.scheduler().running() > 0 && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let unfinished = engine.scheduler().running();
+    if unfinished > 0 {
+        tracing::warn!(
+            jobs = unfinished,
+            "grace period over; running jobs will run again at the next start"
+        );
+    }
     store.close().await;
     Ok(json!({
         "addr": addr.to_string(),
         "drained": stopped.drained,
         "abandoned_connections": stopped.abandoned,
+        "unfinished_jobs": unfinished,
         "recovered_jobs": recovered,
     }))
 }

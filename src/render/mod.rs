@@ -358,7 +358,9 @@ pub fn render<W: Waves + ?Sized>(
     // Pixels outside it see what a miss sees, without a ray (`render_wave`).
     let visible = bounds.map_or(PixelRect::full(w, h), |b| camera.pixel_rect(b, w, h));
     let mut sum = vec![[0.0f32; 3]; n];
-    fill_misses(&mut sum, visible, w as usize, options);
+    // On the pool as well: outside a wave, rayon would use its global pool, whose threads
+    // (one per core) `--threads` does not bound.
+    waves.run_wave(&mut || fill_misses(&mut sum, visible, w as usize, options))?;
     let mut covered = vec![0u32; n];
     let mut primary = if options.aovs.is_empty() {
         Vec::new()

@@ -71,7 +71,13 @@ struct Inner {
     www_authenticate: Option<&'static str>,
     allow: Option<String>,
     internal: Option<String>,
+    refused: Option<&'static str>,
 }
+
+/// The reason a `503` refused a request before its work began, for
+/// `rayd_requests_refused_total` (the metrics middleware reads it off the response).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Refused(pub &'static str);
 
 impl ApiError {
     fn new(
@@ -90,7 +96,15 @@ impl ApiError {
             www_authenticate: None,
             allow: None,
             internal: None,
+            refused: None,
         }))
+    }
+
+    /// Marks a `503` as a refusal for `reason` (`queue_full`, `shutting_down`), which
+    /// `rayd_requests_refused_total` counts.
+    pub fn refused(mut self, reason: &'static str) -> Self {
+        self.0.refused = Some(reason);
+        self
     }
 
     /// 400: a malformed body, parameter or header.
@@ -285,6 +299,9 @@ impl IntoResponse for ApiError {
         }
         if let Some(allow) = inner.allow.and_then(|a| HeaderValue::from_str(&a).ok()) {
             h.insert(header::ALLOW, allow);
+        }
+        if let Some(reason) = inner.refused {
+            res.extensions_mut().insert(Refused(reason));
         }
         res.extensions_mut().insert(ProblemExt {
             problem,

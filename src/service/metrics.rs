@@ -241,7 +241,7 @@ impl Metrics {
                 IntCounterVec::new(
                     Opts::new(
                         "requests_refused_total",
-                        "Requests answered 503 before their work began, by reason (body_budget, client_limit, not_ready).",
+                        "Requests answered 503 before their work began, by reason (body_budget, client_limit, queue_full, shutting_down).",
                     ),
                     &["reason"],
                 )?,
@@ -395,6 +395,9 @@ pub async fn record_request(State(m): State<Metrics>, req: Request, next: Next) 
     let in_flight = InFlight::new(m.http_in_flight.with_label_values(&[&route]));
     let res = next.run(req).await;
     drop(in_flight);
+    if let Some(super::error::Refused(reason)) = res.extensions().get() {
+        m.refused(reason);
+    }
     m.http_requests
         .with_label_values(&[&route, &method, res.status().as_str()])
         .inc();

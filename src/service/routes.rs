@@ -123,8 +123,12 @@ fn job_error(e: JobError) -> ApiError {
         JobError::Limit { what, .. } => ApiError::unprocessable(e.to_string()).with_field(what),
         JobError::Invalid { field, .. } => ApiError::unprocessable(e.to_string()).with_field(field),
         JobError::Camera(c) => ApiError::unprocessable(c.to_string()).with_field("camera"),
-        JobError::QueueFull(_) => ApiError::unavailable(format!("{e}; try again later"), 1),
-        JobError::ShuttingDown => ApiError::unavailable("the service is shutting down", 5),
+        JobError::QueueFull(_) => {
+            ApiError::unavailable(format!("{e}; try again later"), 1).refused("queue_full")
+        }
+        JobError::ShuttingDown => {
+            ApiError::unavailable("the service is shutting down", 5).refused("shutting_down")
+        }
         JobError::Cancelled => ApiError::conflict("the job was cancelled"),
         other => ApiError::internal(other),
     }

@@ -112,8 +112,8 @@ impl Store {
         }
         let row = sqlx::query(concat!(
             "INSERT INTO jobs (id, kind, scene_id, version, request, priority, state, progress, \
-             created_at, idempotency_key) VALUES (?, ?, ?, ?, ?, ?, 'queued', 0, ?, ?) \
-             RETURNING ",
+             created_at, idempotency_key, input_blob) \
+             VALUES (?, ?, ?, ?, ?, ?, 'queued', 0, ?, ?, ?) RETURNING ",
             job_cols!()
         ))
         .bind(&id)
@@ -124,6 +124,7 @@ impl Store {
         .bind(i64::from(new.priority))
         .bind(now)
         .bind(new.idempotency_key.as_deref())
+        .bind(new.input_blob.as_ref().map(|b| b.as_str()))
         .fetch_one(&mut *tx)
         .await?;
         let job = job_from_row(&row)?;

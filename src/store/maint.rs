@@ -17,6 +17,7 @@ use super::{blocking, Store, DB_FILE};
 /// Every blob a record names: versions, single results and frame results.
 const REFERENCED_BLOBS: &str = "SELECT blob FROM scene_versions \
      UNION SELECT result_blob FROM jobs WHERE result_blob IS NOT NULL \
+     UNION SELECT input_blob FROM jobs WHERE input_blob IS NOT NULL \
      UNION SELECT blob FROM job_results";
 
 /// What [`Store::gc`] did.

@@ -97,6 +97,13 @@ fn migrator() -> Migrator {
             SqlStr::from_static(include_str!("migrations/0002_callbacks.sql")),
             false,
         ),
+        Migration::new(
+            3,
+            "job input blobs".into(),
+            MigrationType::Simple,
+            SqlStr::from_static(include_str!("migrations/0003_job_inputs.sql")),
+            false,
+        ),
     ])
 }
 

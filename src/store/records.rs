@@ -197,6 +197,9 @@ pub struct NewJob {
     pub priority: u8,
     /// A retried submission with the same key returns the first job.
     pub idempotency_key: Option<String>,
+    /// The blob the job reads (an async trace's rays), already stored: kept as long as
+    /// the job's record is.
+    pub input_blob: Option<BlobId>,
 }
 
 /// How a running job ended.

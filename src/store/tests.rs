@@ -40,6 +40,7 @@ fn render_job(scene: &SceneRecord) -> NewJob {
         request: r#"{"width": 4}"#.into(),
         priority: 50,
         idempotency_key: None,
+        input_blob: None,
     }
 }
 
@@ -268,7 +269,7 @@ async fn migrations_are_recorded_and_run_once() {
     .unwrap();
     assert_eq!(
         first.iter().map(|m| m.0).collect::<Vec<_>>(),
-        [1, 2],
+        [1, 2, 3],
         "every migration once, in order"
     );
     let s = scene(&store, b"kept across reopen").await;
@@ -618,6 +619,7 @@ async fn job_submissions_are_checked_and_idempotent() {
     let s = scene(&store, b"scene").await;
     let keyed = NewJob {
         idempotency_key: Some("retry-me".into()),
+        input_blob: None,
         ..render_job(&s)
     };
     let (first, created) = store.create_job(keyed.clone()).await.unwrap();
@@ -959,6 +961,34 @@ async fn gc_keeps_young_and_referenced_blobs() {
     );
     store.put_blob(b"young".to_vec()).await.unwrap();
     assert_eq!(store.gc().await.unwrap().deleted, 0);
+}
+
+/// A job's input blob (an async trace's rays) is kept for as long as the job's record
+/// is, however long it waits in the queue, and collected once the job is deleted.
+#[tokio::test]
+async fn gc_keeps_a_jobs_input_while_the_job_exists() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = open(tmp.path()).await;
+    let s = scene(&store, b"scene").await;
+    let rays = store.put_blob(b"rays".to_vec()).await.unwrap();
+    let (job, _) = store
+        .create_job(NewJob {
+            kind: JobKind::Trace,
+            input_blob: Some(rays.clone()),
+            ..render_job(&s)
+        })
+        .await
+        .unwrap();
+    // Grace 0: only the reference keeps it, queued, running and ended alike.
+    assert_eq!(store.gc().await.unwrap().deleted, 0);
+    store.start_job(&job.id).await.unwrap();
+    assert_eq!(store.gc().await.unwrap().deleted, 0);
+    store.cancel_job(&job.id).await.unwrap();
+    assert_eq!(store.gc().await.unwrap().deleted, 0);
+    assert_eq!(store.get_blob(rays.as_str()).await.unwrap(), b"rays");
+    store.delete_job(&job.id).await.unwrap();
+    assert_eq!(store.gc().await.unwrap().deleted, 1);
+    assert!(store.get_blob(rays.as_str()).await.is_err());
 }
 
 /// Uploads of the same bytes race GC (grace 0, the worst case) from several tasks: a record
