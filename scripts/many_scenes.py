@@ -4,10 +4,13 @@ as they accumulate: what the parsed scenes it keeps cost (BENCHMARKS.md §27).
 
 Each scene is a TRI1 body of TRIANGLES triangles of its own (a grid shifted by the scene's
 number, so every upload is new content), uploaded and then traced once with 1024 rays.
-Every EVERY uploads the server's resident memory (VmRSS) is printed.
+Every EVERY uploads the server's resident memory (VmRSS) is printed. With --traces K the
+last scene is then traced K more times (1,024 rays, `accel=mbvh8`, one request after
+another) and each answer's wall time printed: what a scene that fills most of the memory
+budget costs each request (a 1M-triangle scene is 34 MiB of positions).
 
     scripts/many_scenes.py [--bin B] [--scenes 200] [--triangles 100000] [--every 20]
-        [-- EXTRA SERVE ARGS]      (for example -- --geometry-bytes 67108864)
+        [--traces K] [-- EXTRA SERVE ARGS]   (for example -- --geometry-bytes 67108864)
 """
 import argparse
 import json
@@ -58,6 +61,7 @@ def main():
     ap.add_argument("--scenes", type=int, default=200)
     ap.add_argument("--triangles", type=int, default=100_000)
     ap.add_argument("--every", type=int, default=20)
+    ap.add_argument("--traces", type=int, default=0)
     args, extra = ap.parse_args(argv[:cut]), argv[cut + 1:]
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -95,6 +99,15 @@ def main():
                 if k % args.every == 0:
                     print(f"  {k:4d} scenes: RSS {rss_mib(server.pid):.0f} MiB "
                           f"({time.time() - t0:.0f} s)")
+            rays = ray1(1024, float(args.scenes))
+            if args.traces:
+                # The upload's thumbnail (a render at the lowest priority) goes first.
+                time.sleep(3)
+            for _ in range(args.traces):
+                t1 = time.perf_counter()
+                post(f"/v1/scenes/{scene['id']}/trace?accel=mbvh8", rays,
+                     "application/octet-stream")
+                print(f"  trace of the last scene: {1e3 * (time.perf_counter() - t1):.1f} ms")
         finally:
             server.kill()
             server.wait()

@@ -171,16 +171,22 @@ type Cameras = Arc<Vec<crate::scene::Camera>>;
 
 /// A parsed scene: its static pose, and the rig that poses it at other times.
 struct Loaded {
+    /// The scene without its positions, which are `static_pose` (one copy for the parse
+    /// and for version 1's geometry).
     scene: Arc<Scene>,
+    /// Version 1's positions at the static pose.
+    static_pose: Arc<Vec<Triangle>>,
     /// The same file with shading data, materials and lights, parsed on first use by a
     /// render that shades (`path`, or the `albedo`/`normal` AOVs).
     shaded: std::sync::OnceLock<Arc<Scene>>,
 }
 
 impl Loaded {
-    fn new(scene: Scene) -> Loaded {
+    fn new(mut scene: Scene) -> Loaded {
+        let static_pose = Arc::new(std::mem::take(&mut scene.triangles));
         Loaded {
             scene: Arc::new(scene),
+            static_pose,
             shaded: std::sync::OnceLock::new(),
         }
     }
@@ -191,7 +197,9 @@ impl Loaded {
             let p = s.bytes_by_part();
             p.positions + p.attributes + p.textures + p.animation
         };
-        total(&self.scene) + self.shaded.get().map_or(0, |s| total(s))
+        std::mem::size_of_val(&self.static_pose[..])
+            + total(&self.scene)
+            + self.shaded.get().map_or(0, |s| total(s))
     }
 }
 
@@ -378,7 +386,7 @@ impl App {
     /// Stores new positions for every triangle of scene `id` as its next version.
     pub async fn update_geometry(&self, id: &str, body: bytes::Bytes) -> Result<i64, AppError> {
         let loaded = self.loaded(id).await?;
-        let expected = loaded.scene.triangles.len();
+        let expected = loaded.static_pose.len();
         let bad = |e: crate::formats::binary::BinaryError| AppError::BadUpload {
             detail: e.to_string(),
             byte_offset: None,
@@ -440,14 +448,18 @@ impl App {
             }
         }
         let key = GeometryKey::new(id, version, time);
-        let loaded = self.loaded(id).await?;
         if let Some((triangles, cameras)) = self.inner.scenes.geometry(&key) {
             return Ok((Geometry { key, triangles }, cameras));
         }
+        let loaded = self.loaded(id).await?;
         let mut cameras = Arc::new(loaded.scene.cameras.clone());
-        let tris: Arc<Vec<Triangle>> = if version == 1 && time.is_none() {
-            Arc::new(loaded.scene.triangles.clone())
-        } else if let (1, Some(t)) = (version, time) {
+        // Version 1 at rest (or at any time, without a rig) is the parse's own positions:
+        // no copy, and no entry of its own beside the scene's.
+        if version == 1 && (time.is_none() || loaded.scene.rig.is_none()) {
+            let triangles = Arc::clone(&loaded.static_pose);
+            return Ok((Geometry { key, triangles }, cameras));
+        }
+        let tris: Arc<Vec<Triangle>> = if let (1, Some(t)) = (version, time) {
             // The scene's rig re-poses it: no second parse of the file.
             let l = Arc::clone(&loaded);
             let pose = self
