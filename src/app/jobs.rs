@@ -405,6 +405,7 @@ impl App {
                 rt.clone(),
             );
             let last_store = Arc::clone(&last_store);
+            let span = span.clone();
             Arc::new(move |p: f64| {
                 let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                 v.progress = p;
@@ -414,7 +415,8 @@ impl App {
                 if ms >= last_store.load(Ordering::Relaxed) + 500 {
                     last_store.store(ms, Ordering::Relaxed);
                     let (store, id) = (store.clone(), id.clone());
-                    rt.spawn(async move { store.set_progress(&id, p).await });
+                    let write = async move { store.set_progress(&id, p).await };
+                    rt.spawn(tracing::Instrument::instrument(write, span.clone()));
                 }
             }) as crate::jobs::control::ProgressFn
         };

@@ -107,7 +107,10 @@ impl Control {
         {
             f();
         }
-        Ok(self.pool.install(step))
+        // The caller's span (a service job's `job` span) goes with the step to the pool
+        // thread, so that what the step logs names its job.
+        let span = tracing::Span::current();
+        Ok(self.pool.install(move || span.in_scope(step)))
     }
 
     /// Seconds the next wave should take: short while other work waits or interactive
