@@ -606,6 +606,24 @@ fn the_option_table_is_the_help() {
     }
 }
 
+/// `RAYD_DEMO=1` (as containers set switches) parses; the server then stops at the next
+/// check, a zero `--max-body`, which shows that parsing got past it.
+#[test]
+fn switches_take_1_and_0_from_the_environment() {
+    for v in ["1", "0", "true", "off"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_rayd"))
+            .args(["serve", "--max-body", "0"])
+            .env("RAYD_DEMO", v)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("--max-body must be at least 1"),
+            "RAYD_DEMO={v}: {err}"
+        );
+    }
+}
+
 #[test]
 fn flags_win_over_the_environment() {
     let out = Command::new(env!("CARGO_BIN_EXE_rayd"))

@@ -70,8 +70,9 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_TOKEN_FILE")]
     pub token_file: Option<PathBuf>,
 
-    /// Upload the repository's sample scenes at start (default: off).
-    #[arg(long, env = "RAYD_DEMO")]
+    /// Upload the repository's sample scenes at start (default: off). RAYD_DEMO takes
+    /// 1/0, true/false, yes/no or on/off.
+    #[arg(long, env = "RAYD_DEMO", value_parser = clap::builder::BoolishValueParser::new())]
     pub demo: bool,
 
     /// Seconds that a finished job's result is kept (1 day).
