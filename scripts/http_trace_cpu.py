@@ -30,17 +30,17 @@ FREQ = 2999
 
 
 @contextlib.contextmanager
-def serve(binary, threads, log=subprocess.DEVNULL):
-    """`BINARY serve --threads THREADS` on a free loopback port with a temporary data
-    directory, once it accepts connections: yields (port, process, data directory) and
-    kills it at the end."""
+def serve(binary, threads, log=subprocess.DEVNULL, extra=()):
+    """`BINARY serve --threads THREADS [EXTRA...]` on a free loopback port with a temporary
+    data directory, once it accepts connections: yields (port, process, data directory)
+    and kills it at the end."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
     with tempfile.TemporaryDirectory() as data:
         server = subprocess.Popen(
             [binary, "serve", "--threads", str(threads), "--data-dir", data,
-             "--addr", f"127.0.0.1:{port}"],
+             "--addr", f"127.0.0.1:{port}", *extra],
             stdout=subprocess.DEVNULL, stderr=log)
         try:
             for _ in range(100):
@@ -104,6 +104,20 @@ def request(port, method, path, body, ctype, conn=None, rate=None):
     if not lines[0].split()[1].startswith("2"):
         raise RuntimeError(f"{path}: {lines[0]} {bytes(out[:300])!r}")
     return out, headers, (t1 - t0, t2 - t1, t3 - t2, t3 - t0)
+
+
+def wait_thumbnail(port, scene_id):
+    """Waits for scene `scene_id`'s thumbnail, the render every upload queues at the lowest
+    priority, so that timed work does not share the pool with it (the route answers 409
+    while it is still to come)."""
+    for _ in range(120):
+        try:
+            request(port, "GET", f"/v1/scenes/{scene_id}/thumbnail", b"",
+                    "application/octet-stream")
+            return
+        except RuntimeError as e:
+            if " 409 " not in str(e):
+                raise
 
 
 def main():

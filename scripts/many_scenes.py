@@ -3,10 +3,10 @@
 as they accumulate: what the parsed scenes it keeps cost (BENCHMARKS.md §27).
 
 Each scene is a TRI1 body of TRIANGLES triangles of its own (a grid shifted by the scene's
-number, so every upload is new content), uploaded and then traced once with 1024 rays.
-Every EVERY uploads the server's resident memory (VmRSS) is printed. With --traces K the
+number, so every upload is new content), uploaded to one server (`http_trace_cpu.serve`,
+2 threads) and then traced once with 1024 rays. Every EVERY uploads the server's resident memory (VmRSS) is printed. With --traces K the
 last scene is then traced K more times (1,024 rays, `accel=mbvh8`, one request after
-another) and each answer's wall time printed: what a scene that fills most of the memory
+another, once the last upload's thumbnail is made) and each answer's wall time printed: what a scene that fills most of the memory
 budget costs each request (a 1M-triangle scene is 34 MiB of positions).
 
     scripts/many_scenes.py [--bin B] [--scenes 200] [--triangles 100000] [--every 20]
@@ -14,13 +14,11 @@ budget costs each request (a 1M-triangle scene is 34 MiB of positions).
 """
 import argparse
 import json
-import socket
 import struct
-import subprocess
 import sys
-import tempfile
 import time
-import urllib.request
+
+from http_trace_cpu import request, serve, wait_thumbnail
 
 
 def tri1(n, shift):
@@ -63,54 +61,31 @@ def main():
     ap.add_argument("--every", type=int, default=20)
     ap.add_argument("--traces", type=int, default=0)
     args, extra = ap.parse_args(argv[:cut]), argv[cut + 1:]
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
-    base = f"http://127.0.0.1:{port}"
+    with serve(args.bin, 2, extra=extra) as (port, server, _):
+        def post(path, body, ctype):
+            return request(port, "POST", path, body, ctype)[0]
 
-    def post(path, body, ctype):
-        r = urllib.request.Request(base + path, data=body, method="POST",
-                                   headers={"Content-Type": ctype})
-        with urllib.request.urlopen(r) as resp:
-            return resp.read()
-
-    with tempfile.TemporaryDirectory() as data:
-        server = subprocess.Popen(
-            [args.bin, "serve", "--threads", "2", "--data-dir", data, "--addr",
-             f"127.0.0.1:{port}"] + extra,
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        try:
-            for _ in range(200):
-                try:
-                    socket.create_connection(("127.0.0.1", port)).close()
-                    break
-                except OSError:
-                    time.sleep(0.05)
-            print(f"{args.bin} serve {' '.join(extra)}: {args.scenes} scenes of "
-                  f"{args.triangles} triangles ({36 * args.triangles / 2**20:.1f} MiB of "
-                  "positions each)")
-            print(f"  start: RSS {rss_mib(server.pid):.0f} MiB")
-            t0 = time.time()
-            for k in range(1, args.scenes + 1):
-                scene = json.loads(post("/v1/scenes", tri1(args.triangles, float(k)),
-                                        "application/x-rayd-tri"))
-                post(f"/v1/scenes/{scene['id']}/trace", ray1(1024, float(k)),
-                     "application/octet-stream")
-                if k % args.every == 0:
-                    print(f"  {k:4d} scenes: RSS {rss_mib(server.pid):.0f} MiB "
-                          f"({time.time() - t0:.0f} s)")
-            rays = ray1(1024, float(args.scenes))
-            if args.traces:
-                # The upload's thumbnail (a render at the lowest priority) goes first.
-                time.sleep(3)
-            for _ in range(args.traces):
-                t1 = time.perf_counter()
-                post(f"/v1/scenes/{scene['id']}/trace?accel=mbvh8", rays,
-                     "application/octet-stream")
-                print(f"  trace of the last scene: {1e3 * (time.perf_counter() - t1):.1f} ms")
-        finally:
-            server.kill()
-            server.wait()
+        print(f"{args.bin} serve {' '.join(extra)}: {args.scenes} scenes of "
+              f"{args.triangles} triangles ({36 * args.triangles / 2**20:.1f} MiB of "
+              "positions each)")
+        print(f"  start: RSS {rss_mib(server.pid):.0f} MiB")
+        t0 = time.time()
+        for k in range(1, args.scenes + 1):
+            scene = json.loads(post("/v1/scenes", tri1(args.triangles, float(k)),
+                                    "application/x-rayd-tri"))
+            post(f"/v1/scenes/{scene['id']}/trace", ray1(1024, float(k)),
+                 "application/octet-stream")
+            if k % args.every == 0:
+                print(f"  {k:4d} scenes: RSS {rss_mib(server.pid):.0f} MiB "
+                      f"({time.time() - t0:.0f} s)")
+        if args.traces:
+            wait_thumbnail(port, scene["id"])
+        rays = ray1(1024, float(args.scenes))
+        for _ in range(args.traces):
+            t1 = time.perf_counter()
+            post(f"/v1/scenes/{scene['id']}/trace?accel=mbvh8", rays,
+                 "application/octet-stream")
+            print(f"  trace of the last scene: {1e3 * (time.perf_counter() - t1):.1f} ms")
 
 
 if __name__ == "__main__":

@@ -15,7 +15,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use hmac::{KeyInit, Mac};
-use server::{scenes, wait_job, Server};
+use server::{wait_job, Server};
 
 const SECRET: &str = "callback test secret, 32 bytes.";
 
@@ -184,15 +184,10 @@ fn secret_file(dir: &Path) -> std::path::PathBuf {
 }
 
 fn upload(s: &Server) -> String {
-    let bytes = std::fs::read(scenes().join("Box.glb")).unwrap();
-    let r = s.req(
-        "POST",
-        "/v1/scenes",
-        &[("Content-Type", "model/gltf-binary")],
-        &bytes,
-    );
-    assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
-    r.json()["id"].as_str().unwrap().to_string()
+    s.upload_sample("Box.glb")["id"]
+        .as_str()
+        .unwrap()
+        .to_string()
 }
 
 fn render(s: &Server, scene: &str, spec: serde_json::Value) -> server::Resp {

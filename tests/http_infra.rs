@@ -15,6 +15,7 @@ use axum::extract::{ConnectInfo, State};
 use axum::http::{header, Method, Request};
 use axum::response::Response;
 use http_body_util::BodyExt;
+use rayd::jobs::cache::CacheStats;
 use rayd::service::{
     self, openapi, read_body_limited, ApiError, ApiJson, ApiQuery, AppState, Problem, Routes,
     ServeArgs,
@@ -334,18 +335,18 @@ async fn metrics_use_route_templates() {
     send(&app, get("/no/such/route/123")).await;
     s.metrics.observe_trace(2_000_000, 0.5);
     s.metrics.observe_job("render", 1.5);
-    s.metrics
-        .set_structure_cache(rayd::service::metrics::CacheCounts {
-            hits: 1,
-            misses: 2,
-            bytes: 3,
-        });
-    s.metrics
-        .set_texture_cache(rayd::service::metrics::CacheCounts {
-            hits: 4,
-            misses: 5,
-            bytes: 6,
-        });
+    s.metrics.set_structure_cache(&CacheStats {
+        hits: 1,
+        misses: 2,
+        bytes: 3,
+        ..CacheStats::default()
+    });
+    s.metrics.set_texture_cache(&CacheStats {
+        hits: 4,
+        misses: 5,
+        bytes: 6,
+        ..CacheStats::default()
+    });
     s.metrics.set_upload_rate(2.5e8);
     let text = body_text(send(&app, get("/metrics")).await).await;
     assert!(
@@ -383,8 +384,7 @@ async fn metrics_use_route_templates() {
         assert!(text.contains(line), "{line}: {text}");
     }
     // Counters only go up: a smaller count from the source leaves them where they are.
-    s.metrics
-        .set_structure_cache(rayd::service::metrics::CacheCounts::default());
+    s.metrics.set_structure_cache(&CacheStats::default());
     let text = body_text(send(&app, get("/metrics")).await).await;
     assert!(text.contains("rayd_cache_hits_total 1"), "{text}");
     assert!(text.contains("rayd_cache_bytes 0"), "{text}");
@@ -517,6 +517,13 @@ async fn one_client_cannot_take_every_slot() {
     tokio::time::sleep(Duration::from_millis(50)).await;
     gate.notify_waiters();
     assert_eq!(again.await.unwrap().unwrap().status(), 200);
+    // The refusal was counted once, by its reason (the metrics middleware reads the mark
+    // the limiter's 503 carries).
+    let text = body_text(send(&app, get("/metrics")).await).await;
+    assert!(
+        text.contains(r#"rayd_requests_refused_total{reason="client_limit"} 1"#),
+        "{text}"
+    );
 }
 
 #[test]

@@ -615,19 +615,8 @@ fn auto_weighs_how_long_the_rays_take_to_arrive() {
 fn scenes_evicted_from_memory_come_back_from_the_store() {
     let dir = tempfile::tempdir().unwrap();
     let s = Server::start(&dir.path().join("data"), &["--geometry-bytes", "1"]);
-    let upload = |file: &str| {
-        let bytes = std::fs::read(scenes().join(file)).unwrap();
-        let r = s.req(
-            "POST",
-            "/v1/scenes",
-            &[("Content-Type", "model/gltf-binary")],
-            &bytes,
-        );
-        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
-        r.json()
-    };
-    let fox = upload("Fox.glb");
-    let other = upload("BoxAnimated.glb");
+    let fox = s.upload_sample("Fox.glb");
+    let other = s.upload_sample("BoxAnimated.glb");
     let id = fox["id"].as_str().unwrap().to_string();
     let other_id = other["id"].as_str().unwrap().to_string();
     let min: Vec<f32> = serde_json::from_value(fox["bounds"]["min"].clone()).unwrap();
@@ -709,14 +698,10 @@ fn sigterm_lets_a_running_render_finish_within_the_grace_period() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     let s = Server::start(&data, &[]);
-    let fox = std::fs::read(scenes().join("Fox.glb")).unwrap();
-    let r = s.req(
-        "POST",
-        "/v1/scenes",
-        &[("Content-Type", "model/gltf-binary")],
-        &fox,
-    );
-    let id = r.json()["id"].as_str().unwrap().to_string();
+    let id = s.upload_sample("Fox.glb")["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
     let r = s.req(
         "POST",
         &format!("/v1/scenes/{id}/render"),

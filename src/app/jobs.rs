@@ -20,7 +20,7 @@ use crate::geometry::Ray;
 use crate::jobs::render::FrameInput;
 use crate::jobs::{sched, trace, CancelToken, JobError};
 use crate::render::surface::Surfaces;
-use crate::render::texture::TextureSet;
+use crate::render::texture::{DecodedOnce, TextureSet};
 use crate::store::{BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob};
 
 /// A job as the API shows it (contract §5).
@@ -536,9 +536,8 @@ impl App {
         // frame's time for version 1; later versions move positions only, so they shade
         // with the file's static normals and lights.
         let needs_surfaces = request.needs_surfaces();
-        // Found in the engine's cache, or decoded, by the first frame that shades; held by
-        // the job for its later frames whatever the cache evicts meanwhile.
-        let textures = std::sync::OnceLock::new();
+        // Found in the engine's cache (or decoded into it) by the first frame that shades.
+        let textures = DecodedOnce::default();
         let frame_at = |time: Option<f64>| {
             let time = time.filter(|_| version == Some(1));
             let (geometry, cameras) = rt
@@ -556,20 +555,16 @@ impl App {
                     ),
                     None => None,
                 };
-                let decoded = match textures.get() {
-                    Some(t) => Arc::clone(t),
-                    None => {
-                        let t = self
-                            .engine()
+                let decoded = textures
+                    .get_or(|| {
+                        self.engine()
                             .textures()
                             .get_or_decode(&scene, || TextureSet::of(&shaded))
-                            .map_err(|e| JobError::Geometry(e.to_string()))?;
-                        Arc::clone(textures.get_or_init(|| t))
-                    }
-                };
+                    })
+                    .map_err(|e| JobError::Geometry(e.to_string()))?;
                 Some(Arc::new(Surfaces::with_textures(
                     posed.as_ref().unwrap_or(&shaded),
-                    (*decoded).clone(),
+                    (**decoded).clone(),
                 )))
             } else {
                 None

@@ -112,17 +112,14 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     )
     .await
     .map_err(|source| io("serving failed", source))?;
-    // No new work. Running jobs finish within the grace period (counted from the
-    // signal); one still running then stays `running` in the store, and the next start
-    // runs it again from the beginning.
-    engine.scheduler().shut_down();
-    let since = if signalled.is_finished() {
-        signalled
-            .await
-            .unwrap_or_else(|_| std::time::Instant::now())
-    } else {
-        std::time::Instant::now()
-    };
+    // No new work (the task refused it when the signal came). Running jobs finish within
+    // the grace period, counted from the signal; one still running then stays `running`
+    // in the store, and the next start runs it again from the beginning. `serve` returns
+    // once the shutdown has started; triggering it again is a no-op that makes sure.
+    state.shutdown.trigger();
+    let since = signalled
+        .await
+        .unwrap_or_else(|_| std::time::Instant::now());
     let deadline = since + config.grace();
     while engine.scheduler().running() > 0 && std::time::Instant::now() < deadline {
         tokio::time::sleep(Duration::from_millis(20)).await;
@@ -198,13 +195,8 @@ fn sampler(engine: Arc<crate::jobs::Engine>) -> service::metrics::Sampler {
         let sched = engine.scheduler();
         m.set_queue_length(sched.queued());
         m.set_jobs_running(sched.running());
-        let counts = |c: crate::jobs::cache::CacheStats| service::metrics::CacheCounts {
-            hits: c.hits,
-            misses: c.misses,
-            bytes: c.bytes as u64,
-        };
-        m.set_structure_cache(counts(engine.cache().stats()));
-        m.set_texture_cache(counts(engine.textures().stats()));
+        m.set_structure_cache(&engine.cache().stats());
+        m.set_texture_cache(&engine.textures().stats());
         m.set_upload_rate(engine.upload_rate());
     })
 }

@@ -693,20 +693,30 @@ fn bundle_of(textures: &[[Option<Bound>; 2]], refs: [Option<TextureRef>; SLOTS])
     Bundle::of(slots, filtering, tex_coord)
 }
 
-/// A scene's textures, decoded by the first frame that needs them and shared by the rest
-/// of a sequence: poses and geometry versions move positions, never texels, and decoding
-/// four 2048² images takes longer than rendering a small frame of them.
+/// A scene's textures, decoded (or found) by the first frame that needs them and shared by
+/// the rest of a sequence: poses and geometry versions move positions, never texels, and
+/// decoding four 2048² images takes longer than rendering a small frame of them.
 #[derive(Debug, Default)]
-pub struct DecodedOnce(std::sync::OnceLock<TextureSet>);
+pub struct DecodedOnce(std::sync::OnceLock<Arc<TextureSet>>);
 
 impl DecodedOnce {
     /// The textures of `scene` (decoded now if no frame has yet).
     pub fn get(&self, scene: &Scene) -> Result<&TextureSet, TextureError> {
+        Ok(self.get_or(|| TextureSet::of(scene).map(Arc::new))?)
+    }
+
+    /// The textures an earlier frame got, or what `find` gives now (the service's cache of
+    /// decoded textures, which decodes them on a miss), kept for the later frames whatever
+    /// that cache evicts meanwhile.
+    pub fn get_or<E>(
+        &self,
+        find: impl FnOnce() -> Result<Arc<TextureSet>, E>,
+    ) -> Result<&Arc<TextureSet>, E> {
         if let Some(t) = self.0.get() {
             return Ok(t);
         }
-        let decoded = TextureSet::of(scene)?;
-        Ok(self.0.get_or_init(|| decoded))
+        let found = find()?;
+        Ok(self.0.get_or_init(|| found))
     }
 }
 

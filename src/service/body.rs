@@ -78,7 +78,6 @@ impl BodyBudget {
     async fn acquire(&self, bytes: u64) -> Result<Held, ApiError> {
         let units = bytes.div_ceil(UNIT);
         let refuse = || {
-            self.metrics.refused("body_budget");
             ApiError::unavailable(
                 format!(
                     "the server's memory for request bodies ({} bytes, --max-inflight-bytes) is \
@@ -87,6 +86,7 @@ impl BodyBudget {
                 ),
                 RETRY_AFTER_S,
             )
+            .refused("body_budget")
         };
         let Ok(units) = u32::try_from(units) else {
             return Err(refuse());
@@ -379,16 +379,14 @@ pub async fn read_body_limited(
 pub struct ClientLimiter {
     max: usize,
     counts: Arc<Mutex<HashMap<IpAddr, usize>>>,
-    metrics: Metrics,
 }
 
 impl ClientLimiter {
     /// At most `max` concurrent requests per IP address; 0: no bound.
-    pub fn new(max: usize, metrics: Metrics) -> Self {
+    pub fn new(max: usize) -> Self {
         ClientLimiter {
             max,
             counts: Arc::default(),
-            metrics,
         }
     }
 
@@ -444,18 +442,16 @@ pub async fn limit_per_client(
             drop(slot);
             res
         }
-        None => {
-            limiter.metrics.refused("client_limit");
-            ApiError::unavailable(
-                format!(
-                    "{} already has {} requests running (--max-client-requests); retry when one ends",
-                    peer.ip(),
-                    limiter.max
-                ),
-                RETRY_AFTER_S,
-            )
-            .into_response()
-        }
+        None => ApiError::unavailable(
+            format!(
+                "{} already has {} requests running (--max-client-requests); retry when one ends",
+                peer.ip(),
+                limiter.max
+            ),
+            RETRY_AFTER_S,
+        )
+        .refused("client_limit")
+        .into_response(),
     }
 }
 
@@ -552,7 +548,7 @@ mod tests {
 
     #[test]
     fn client_slots() {
-        let l = ClientLimiter::new(2, Metrics::new().unwrap());
+        let l = ClientLimiter::new(2);
         let ip: IpAddr = "127.0.0.1".parse().unwrap();
         let other: IpAddr = "::1".parse().unwrap();
         let a = l.try_acquire(ip).unwrap();
@@ -561,7 +557,7 @@ mod tests {
         assert!(l.try_acquire(other).is_some());
         drop(a);
         assert!(l.try_acquire(ip).is_some());
-        let unbounded = ClientLimiter::new(0, Metrics::new().unwrap());
+        let unbounded = ClientLimiter::new(0);
         let _slots: Vec<_> = (0..100)
             .map(|_| unbounded.try_acquire(ip).unwrap())
             .collect();

@@ -100,8 +100,10 @@ impl ApiError {
         }))
     }
 
-    /// Marks a `503` as a refusal for `reason` (`queue_full`, `shutting_down`), which
-    /// `rayd_requests_refused_total` counts.
+    /// Marks a `503` as a refusal for `reason` (`body_budget`, `client_limit`,
+    /// `queue_full`, `shutting_down`), which `rayd_requests_refused_total` counts: the
+    /// metrics middleware reads the mark off the response, so every refusal is counted in
+    /// one place, wherever it was made.
     pub fn refused(mut self, reason: &'static str) -> Self {
         self.0.refused = Some(reason);
         self

@@ -21,6 +21,7 @@ use prometheus::{
 };
 
 use super::error::ApiError;
+use crate::jobs::cache::CacheStats;
 
 /// The media type of the text exposition format.
 pub const PROMETHEUS_TEXT: &str = "text/plain; version=0.0.4; charset=utf-8";
@@ -54,17 +55,6 @@ pub struct Metrics {
 /// Reads state that changes without a request passing by (the queue, the caches) into
 /// the metrics, each time `/metrics` is read.
 pub type Sampler = Box<dyn Fn(&Metrics) + Send + Sync>;
-
-/// A cache's counters and size, as the domain layer reports them when sampled.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct CacheCounts {
-    /// Lookups that found their entry, since the start.
-    pub hits: u64,
-    /// Lookups that did not, since the start.
-    pub misses: u64,
-    /// Bytes held now.
-    pub bytes: u64,
-}
 
 impl std::fmt::Debug for Metrics {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -289,17 +279,18 @@ impl Metrics {
     }
 
     /// Sets the structure cache's counters and size.
-    pub fn set_structure_cache(&self, c: CacheCounts) {
+    pub fn set_structure_cache(&self, c: &CacheStats) {
         catch_up(&self.cache_hits, c.hits);
         catch_up(&self.cache_misses, c.misses);
-        self.cache_bytes.set(c.bytes.min(i64::MAX as u64) as i64);
+        self.cache_bytes.set(c.bytes.min(i64::MAX as usize) as i64);
     }
 
     /// Sets the texture cache's counters and size.
-    pub fn set_texture_cache(&self, c: CacheCounts) {
+    pub fn set_texture_cache(&self, c: &CacheStats) {
         catch_up(&self.texture_hits, c.hits);
         catch_up(&self.texture_misses, c.misses);
-        self.texture_bytes.set(c.bytes.min(i64::MAX as u64) as i64);
+        self.texture_bytes
+            .set(c.bytes.min(i64::MAX as usize) as i64);
     }
 
     /// Sets the rate at which `auto` expects trace bodies to arrive.

@@ -109,7 +109,7 @@ impl AppState {
         let metrics = Metrics::new()?;
         Ok(AppState {
             bodies: BodyBudget::new(config.max_inflight_bytes, metrics.clone()),
-            clients: ClientLimiter::new(config.max_client_requests, metrics.clone()),
+            clients: ClientLimiter::new(config.max_client_requests),
             config: Arc::new(config),
             auth,
             metrics,

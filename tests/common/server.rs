@@ -69,6 +69,19 @@ impl Server {
         self.try_request(method, path, headers, body).unwrap()
     }
 
+    /// Uploads the repository's sample scene `name` (a `.glb`) as a new scene: its summary.
+    pub fn upload_sample(&self, name: &str) -> serde_json::Value {
+        let bytes = std::fs::read(scenes().join(name)).unwrap();
+        let r = self.req(
+            "POST",
+            "/v1/scenes",
+            &[("Content-Type", "model/gltf-binary")],
+            &bytes,
+        );
+        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+        r.json()
+    }
+
     pub fn kill9(mut self) {
         self.child.kill().unwrap();
         self.child.wait().unwrap();
