@@ -11,10 +11,13 @@ the server idles S seconds before each. Prints the median, fastest and slowest u
 all but the first ten. With `--strace`, the updates run under `strace -f -T` of the server
 and the script also prints how long its fsyncs took: the blob's (the one before each
 rename), its directory's (the one after) and the others (the database's commit, and the
-directory of each blob shard made for the first time).
+directory of each blob shard made for the first time). At the end it prints the bytes under
+the data directory (blobs and database), a second after the last update, and how many
+blob files there are: with `--keep-versions K` (anything after `--` goes to `rayd serve`)
+they stay near K versions' worth.
 
     scripts/put_geometry.py ../shared/scenes/CesiumMan.glb [--requests 60] [--gap 0.05]
-        [--strace] [--bin target/release/rayd]
+        [--strace] [--bin target/release/rayd] [-- --keep-versions 16]
 """
 import argparse
 import json
@@ -24,6 +27,7 @@ import socket
 import statistics
 import struct
 import subprocess
+import sys
 import tempfile
 import time
 
@@ -58,9 +62,12 @@ def main():
     ap.add_argument("--gap", type=float, default=0.0)
     ap.add_argument("--strace", action="store_true")
     ap.add_argument("--bin", default="target/release/rayd")
-    a = ap.parse_args()
+    argv = sys.argv[1:]
+    cut = argv.index("--") if "--" in argv else len(argv)
+    a = ap.parse_args(argv[:cut])
+    a.serve_args = argv[cut + 1:]  # more `rayd serve` options
     log = os.path.join(tempfile.mkdtemp(), "put.strace")
-    with serve(a.bin, 2) as (port, server, _):
+    with serve(a.bin, 2, extra=a.serve_args) as (port, server, data):
         scene, _, _ = request(port, "POST", "/v1/scenes", open(a.scene, "rb").read(),
                               "model/gltf-binary")
         sid = json.loads(bytes(scene))["id"]
@@ -84,10 +91,18 @@ def main():
         if tracer:
             tracer.terminate()
             tracer.wait()
+        time.sleep(1.0)
+        stored = sum(os.path.getsize(os.path.join(root, f))
+                     for root, _, files in os.walk(data) for f in files)
+        shards = os.path.join(data, "blobs")
+        blobs = sum(len([f for f in os.listdir(os.path.join(shards, d)) if not f.startswith(".")])
+                    for d in os.listdir(shards) if len(d) == 2)
     timed = ms[10:]
     print(f"{a.bin}: {len(timed)} geometry updates ({len(tri)} bytes), gap {a.gap} s: "
           f"median {statistics.median(timed):.2f} ms, fastest {min(timed):.2f}, "
           f"slowest {max(timed):.2f}")
+    print(f"  data directory: {stored / 2**20:.1f} MiB, {blobs} blob files "
+          f"(extra serve options: {' '.join(a.serve_args) or 'none'})")
     if a.strace:
         for kind, took in fsyncs(log).items():
             if took:

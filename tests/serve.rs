@@ -689,6 +689,189 @@ fn scenes_evicted_from_memory_come_back_from_the_store() {
     }
 }
 
+/// `Prefer: respond-async` on a trace: `202` and a job whose result is the HIT1 body a
+/// synchronous trace answers; a body that the synchronous trace would refuse (over
+/// `--max-rays`, truncated) is refused the same way before any job is made.
+#[test]
+fn async_traces_answer_as_sync_ones_and_refuse_bad_bodies_up_front() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--max-rays", "1000"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let min: Vec<f32> = serde_json::from_value(fox["bounds"]["min"].clone()).unwrap();
+    let max: Vec<f32> = serde_json::from_value(fox["bounds"]["max"].clone()).unwrap();
+    let rays = |n| {
+        write_rays(&rays_at(
+            [min[0], min[1], min[2]],
+            [max[0], max[1], max[2]],
+            n,
+        ))
+    };
+    let path = format!("/v1/scenes/{id}/trace?accel=bvh2&hit=t_prim_uv");
+    let octet = ("Content-Type", "application/octet-stream");
+    let prefer = ("Prefer", "respond-async");
+    let body = rays(1000);
+    let sync = s.req("POST", &path, &[octet], &body);
+    assert_eq!(sync.status, 200, "{}", String::from_utf8_lossy(&sync.body));
+    let r = s.req("POST", &path, &[octet, prefer], &body);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let job = r.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    let result = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
+    assert_eq!(result.status, 200);
+    assert_eq!(
+        result.header("content-length"),
+        Some(result.body.len().to_string().as_str())
+    );
+    assert!(
+        result.body == sync.body,
+        "the job's hits differ from the sync trace's"
+    );
+
+    let jobs_before = s.req("GET", "/v1/jobs", &[], &[]).json()["jobs"]
+        .as_array()
+        .unwrap()
+        .len();
+    for (what, bad, status) in [
+        ("over --max-rays", rays(1001), 413),
+        ("truncated", body[..body.len() - 5].to_vec(), 400),
+    ] {
+        let sync = s.req("POST", &path, &[octet], &bad);
+        assert_eq!(sync.status, status, "sync, {what}");
+        let r = s.req("POST", &path, &[octet, prefer], &bad);
+        assert_eq!(
+            r.status,
+            status,
+            "async, {what}: {}",
+            String::from_utf8_lossy(&r.body)
+        );
+        assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    }
+    let jobs_after = s.req("GET", "/v1/jobs", &[], &[]).json()["jobs"]
+        .as_array()
+        .unwrap()
+        .len();
+    assert_eq!(jobs_before, jobs_after, "a refused body made a job");
+}
+
+/// With `--keep-versions 2` a scene keeps version 1, its two newest versions and the
+/// versions a job names: an older version answers 404 to traces and to `GET …/geometry`,
+/// in memory as on disk, and a version a finished job names outlives newer ones until
+/// the job is deleted.
+#[test]
+fn old_geometry_versions_are_deleted_unless_a_job_names_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let s = Server::start(&data, &["--keep-versions", "2"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let geometry = s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[]);
+    assert_eq!(geometry.status, 200);
+    let base = rayd::formats::binary::read_tri(&geometry.body).unwrap();
+    let body_of = |dy: f32| {
+        let mut tris = base.clone();
+        for t in &mut tris {
+            for v in &mut t.v {
+                v[1] += dy;
+            }
+        }
+        write_tri(&tris)
+    };
+    // Where the store keeps a blob (`proto/store.md`: `blobs/ab/abcdef…`).
+    let blob_file = |bytes: &[u8]| {
+        let hex = blake3::hash(bytes).to_hex().to_string();
+        data.join("blobs").join(&hex[..2]).join(hex)
+    };
+    let put = |dy: f32| {
+        let r = s.req(
+            "PUT",
+            &format!("/v1/scenes/{id}/geometry"),
+            &[("Content-Type", "application/x-rayd-tri")],
+            &body_of(dy),
+        );
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        r.json()["version"].as_i64().unwrap()
+    };
+    let body = write_rays(&rays_at([-50.0, 0.0, -50.0], [50.0, 100.0, 50.0], 200));
+    let octet = [("Content-Type", "application/octet-stream")];
+    let trace = |version: i64| {
+        s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/trace?version={version}"),
+            &octet,
+            &body,
+        )
+    };
+    let status = |version: i64| trace(version).status;
+    let geometry = |version: i64| {
+        s.req(
+            "GET",
+            &format!("/v1/scenes/{id}/geometry?version={version}"),
+            &[],
+            &[],
+        )
+        .status
+    };
+    assert_eq!((put(1.0), put(2.0)), (2, 3));
+    assert_eq!(status(2), 200, "version 2 is traced (and held in memory)");
+    assert_eq!(put(3.0), 4);
+    let gone = trace(2);
+    assert_eq!(gone.status, 404, "{}", String::from_utf8_lossy(&gone.body));
+    assert_eq!(geometry(2), 404);
+    // Its blob goes at once, not after the collection's 15-minute grace.
+    let t0 = Instant::now();
+    while blob_file(&body_of(1.0)).exists() && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        !blob_file(&body_of(1.0)).exists(),
+        "version 2's blob is still stored"
+    );
+    assert!(
+        blob_file(&body_of(2.0)).exists(),
+        "version 3's blob is kept"
+    );
+    // A stored version is answered with the bytes its PUT sent.
+    let g3 = s.req(
+        "GET",
+        &format!("/v1/scenes/{id}/geometry?version=3"),
+        &[],
+        &[],
+    );
+    assert!(
+        g3.body == body_of(2.0),
+        "version 3's geometry is not what was PUT"
+    );
+    assert_eq!(g3.header("content-type"), Some("application/x-rayd-tri"));
+    for v in [1, 3, 4] {
+        assert_eq!((status(v), geometry(v)), (200, 200), "version {v}");
+    }
+    // A render job on version 3 keeps it past versions 5 and 6.
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        br#"{"width": 8, "height": 8, "integrator": "primary", "version": 3}"#,
+    );
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let job = r.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    assert_eq!((put(4.0), put(5.0)), (5, 6));
+    assert_eq!(status(3), 200, "version 3 is named by a job");
+    assert_eq!(status(4), 404);
+    let del = s.req("DELETE", &format!("/v1/jobs/{job}"), &[], &[]);
+    assert_eq!(del.status, 204, "{}", String::from_utf8_lossy(&del.body));
+    assert_eq!(put(6.0), 7);
+    assert_eq!(
+        status(3),
+        404,
+        "version 3 went with its job at the next version"
+    );
+    for v in [1, 6, 7] {
+        assert_eq!(status(v), 200, "version {v}");
+    }
+}
+
 /// SIGTERM while a render runs: the server refuses new work, lets the render finish within
 /// `--grace` (the test servers' 2 s; the render takes a few tenths), records its end, and
 /// only then exits; after a restart the job is `succeeded` with its result, not queued

@@ -156,7 +156,7 @@ async fn child(dir: &Path) {
             })
             .await
             .unwrap();
-        let v = store.add_version(&rec.id, &tri).await.unwrap();
+        let (v, _) = store.add_version(&rec.id, &tri).await.unwrap();
         println!("ACK version {} {} {} .", rec.id, v.version, v.blob);
         let (job, _) = store
             .create_job(NewJob {

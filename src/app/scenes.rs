@@ -12,12 +12,13 @@ use serde::Serialize;
 use serde_json::json;
 
 use super::{App, AppError, TraceParams};
-use crate::formats::binary::{read_tri, tri_count};
+use crate::formats::binary::{read_tri, tri_count, write_tri};
 use crate::formats::{LoadOptions, Parts};
 use crate::geometry::{RaySegment, Triangle};
 use crate::jobs::lru::Lru;
 use crate::jobs::{sched, trace, Geometry, GeometryKey, HitBody, TraceReport};
 use crate::scene::Scene;
+use crate::store::StoreError;
 use crate::store::{BlobId, NewScene, SceneRecord};
 
 /// What an upload is.
@@ -272,6 +273,55 @@ impl SceneCache {
     fn forget(&self, scene: &str) {
         self.lock().remove_where(|k| k.scene() == scene);
     }
+
+    /// Drops the positions of versions the store has deleted, so that they answer `404`
+    /// from memory as they do from the store.
+    fn forget_versions(&self, scene: &str, versions: &[i64]) {
+        if versions.is_empty() {
+            return;
+        }
+        self.lock().remove_where(|k| match k {
+            CacheKey::Geometry(g) => &*g.scene == scene && versions.contains(&i64::from(g.version)),
+            CacheKey::Scene(_) => false,
+        });
+    }
+}
+
+/// A TRI1 body of a scene's positions ([`App::triangles_tri1`]).
+#[derive(Debug)]
+pub enum Tri1Body {
+    /// A stored version's file, verified, at offset 0, and its length.
+    Stored {
+        /// The open file.
+        file: tokio::fs::File,
+        /// Its length in bytes.
+        len: u64,
+    },
+    /// Positions encoded for this request.
+    Encoded(Vec<u8>),
+}
+
+/// Stores `bytes` as a blob, then commits the record `record` makes of it. If the blob
+/// vanished in between (the blob of a deleted version with the same bytes, collected at
+/// once by [`crate::store::Store::collect_pruned`]), stores it again: twice more at most,
+/// since each try needs a version deleted and collected within milliseconds.
+async fn stored_then_recorded<T, F, Fut>(
+    store: &crate::store::Store,
+    bytes: bytes::Bytes,
+    record: F,
+) -> Result<T, AppError>
+where
+    F: Fn(crate::store::Store, BlobId) -> Fut,
+    Fut: std::future::Future<Output = Result<T, StoreError>>,
+{
+    let mut tries = 0;
+    loop {
+        let blob = store.put_blob(bytes.clone()).await?;
+        match record(store.clone(), blob).await {
+            Err(StoreError::NotFound { what: "blob", .. }) if tries < 2 => tries += 1,
+            r => return Ok(r?),
+        }
+    }
 }
 
 impl App {
@@ -297,16 +347,17 @@ impl App {
         let max = self.inner.max_triangles;
         let scene = self.cpu(move || parse(kind, &b, max)).await??;
         let summary = scene_info(&scene).to_string();
-        let blob = self.store().put_blob(bytes).await?;
-        let (record, created) = self
-            .store()
-            .create_scene(NewScene {
-                blob,
-                content_type: kind.media_type().to_string(),
-                name,
-                summary,
-            })
-            .await?;
+        let new = |blob| NewScene {
+            blob,
+            content_type: kind.media_type().to_string(),
+            name: name.clone(),
+            summary: summary.clone(),
+        };
+        let (record, created) = stored_then_recorded(self.store(), bytes, |store, blob| {
+            let new = new(blob);
+            async move { store.create_scene(new).await }
+        })
+        .await?;
         self.inner
             .scenes
             .keep_loaded(&record.id, Arc::new(Loaded::new(scene)));
@@ -401,17 +452,38 @@ impl App {
         // a frame's update costs the longer of the two, not their sum. A body that turns
         // out not to parse (a NaN) leaves an unnamed blob, which GC collects.
         let b = body.clone();
-        let (tris, blob) =
-            tokio::join!(self.cpu(move || read_tri(&b)), self.store().put_blob(body));
+        let (tris, blob) = tokio::join!(
+            self.cpu(move || read_tri(&b)),
+            self.store().put_blob(body.clone())
+        );
         let tris = tris?.map_err(bad)?;
-        let blob = blob?;
-        let version = self.store().add_version(id, &blob).await?.version;
+        let (record, pruned) = match self.store().add_version(id, &blob?).await {
+            Err(StoreError::NotFound { what: "blob", .. }) => {
+                stored_then_recorded(self.store(), body, |store, blob| async move {
+                    store.add_version(id, &blob).await
+                })
+                .await?
+            }
+            r => r?,
+        };
+        let version = record.version;
+        self.inner.scenes.forget_versions(id, &pruned);
         self.inner.scenes.keep_geometry(
             GeometryKey::new(id, version as u32, None),
             Arc::new(tris),
             Arc::new(loaded.scene.cameras.clone()),
         );
         Ok(version)
+    }
+
+    /// Deletes the old versions that jobs kept until they ended (see
+    /// [`crate::store::Store::prune_versions`]); returns how many. For the periodic upkeep.
+    pub async fn prune_versions(&self) -> Result<usize, AppError> {
+        let pruned = self.store().prune_versions().await?;
+        for (scene, version) in &pruned {
+            self.inner.scenes.forget_versions(scene, &[*version]);
+        }
+        Ok(pruned.len())
     }
 
     /// The triangles of scene `id` at `version` (default: the latest) and `time` (version
@@ -492,15 +564,34 @@ impl App {
     }
 
     /// The world-space triangles of scene `id` at `version` (default: the latest) and `time`
-    /// (version 1 only), in id order: what `GET /v1/scenes/{id}/geometry` answers, so that a
-    /// client can shade its own hits (normals, hit points) with the positions that were traced.
-    pub async fn triangles(
+    /// (version 1 only) as a TRI1 body, in id order: what `GET /v1/scenes/{id}/geometry`
+    /// answers, so that a client can shade its own hits (normals, hit points) with the
+    /// positions that were traced. A version from 2 on is the TRI1 body its `PUT` stored,
+    /// byte for byte what encoding its triangles gives, so it is sent from its file (checked
+    /// against its hash) instead of being encoded again; other positions are encoded on the
+    /// pool, never on the async runtime.
+    pub async fn triangles_tri1(
         &self,
         id: &str,
         version: Option<u32>,
         time: Option<f64>,
-    ) -> Result<Arc<Vec<Triangle>>, AppError> {
-        Ok(self.geometry(id, version, time).await?.0.triangles)
+    ) -> Result<Tri1Body, AppError> {
+        let latest = self.store().get_scene(id).await?.latest_version as u32;
+        let v = version.unwrap_or(latest);
+        if v >= 2 && time.is_none() {
+            if let Ok(record) = self.store().get_version(id, i64::from(v)).await {
+                let file = self.store().open_blob(&record.blob).await?;
+                let len = file
+                    .metadata()
+                    .await
+                    .map_err(|e| AppError::Internal(format!("version {v} of {id}: {e}")))?
+                    .len();
+                return Ok(Tri1Body::Stored { file, len });
+            }
+        }
+        // Version 1, a `time`, or a version that does not exist: `geometry` says which.
+        let tris = self.geometry(id, version, time).await?.0.triangles;
+        Ok(Tri1Body::Encoded(self.cpu(move || write_tri(&tris)).await?))
     }
 
     /// Admits a synchronous trace to the queue (before its body is read, so that a full

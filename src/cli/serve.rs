@@ -40,6 +40,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         crate::store::StoreOptions {
             result_ttl: (config.result_ttl > 0).then(|| Duration::from_secs(config.result_ttl)),
             max_bytes: config.max_store_bytes,
+            keep_versions: (config.keep_versions > 0).then_some(config.keep_versions),
             ..Default::default()
         },
     )
@@ -89,6 +90,12 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         demo(&app).await;
     }
     state.metrics.sample_with(sampler(Arc::clone(&engine)));
+    // `/readyz` answers 503 while new work would be refused (a full queue), so that a load
+    // balancer sends it elsewhere instead of into 503s.
+    let sched = Arc::clone(engine.scheduler());
+    state.ready.set_refusal(Box::new(move || {
+        sched.refusal().map(|e| format!("new work is refused: {e}"))
+    }));
     spawn_housekeeping(state.clone(), app.clone());
     // The signal reaches the engine at once: no job starts from then on, and the ones
     // running get what is left of the grace period once the connections have drained.
@@ -166,7 +173,7 @@ async fn demo(app: &crate::app::App) {
     }
 }
 
-/// Once a minute: expiry and blob collection.
+/// Once a minute: expiry, old versions and blob collection.
 fn spawn_housekeeping(state: AppState, app: crate::app::App) {
     tokio::spawn(async move {
         let minute = Duration::from_secs(60);
@@ -174,11 +181,27 @@ fn spawn_housekeeping(state: AppState, app: crate::app::App) {
         loop {
             tokio::select! {
                 _ = tick.tick() => {}
+                _ = app.store().pruned_waiting() => {
+                    // Versions just deleted by a newer one: their blobs go now, not after
+                    // the collection's grace.
+                    if let Err(e) = app.store().collect_pruned().await {
+                        tracing::warn!("deleting old versions' blobs failed: {e}");
+                    }
+                    continue;
+                }
                 _ = state.shutdown.cancelled() => break,
             }
             let store = app.store();
             if let Err(e) = store.expire(crate::store::now_millis()).await {
                 tracing::warn!("expiring finished jobs failed: {e}");
+            }
+            match app.prune_versions().await {
+                Ok(0) => {}
+                Ok(n) => tracing::info!(versions = n, "old geometry versions deleted"),
+                Err(e) => tracing::warn!("deleting old geometry versions failed: {e}"),
+            }
+            if let Err(e) = store.collect_pruned().await {
+                tracing::warn!("deleting old versions' blobs failed: {e}");
             }
             if let Err(e) = store.gc().await {
                 tracing::warn!("blob collection failed: {e}");

@@ -530,6 +530,22 @@ pub fn write_rays(rays: &[Ray]) -> Vec<u8> {
     out
 }
 
+/// The ray count of a whole RAY1 body whose header and length hold and whose count is at
+/// most `limit`, reading no record: the checks [`Ray1Sink`] makes before the records, for
+/// a body that is kept as it is (an asynchronous trace's rays, stored for its job).
+pub fn ray_count(bytes: &[u8], limit: usize) -> Result<usize, BinaryError> {
+    let mut sink = Ray1Sink::new(limit, None);
+    sink.push(&bytes[..bytes.len().min(HEADER_BYTES)])?;
+    let count = sink.count().ok_or(BinaryError::ShortHeader {
+        kind: "RAY1",
+        len: bytes.len(),
+    })?;
+    if bytes.len() as u128 != HEADER_BYTES as u128 + 32 * count as u128 {
+        return Err(sink.wrong_length(bytes.len() as u128));
+    }
+    Ok(count)
+}
+
 /// The triangle count of a TRI1 body whose header and length hold, reading no record: what
 /// [`read_tri`] checks before it reads the records.
 pub fn tri_count(bytes: &[u8]) -> Result<usize, BinaryError> {
@@ -664,6 +680,38 @@ mod tests {
         assert_eq!(bytes.len(), 16 + 5 * 32);
         assert_eq!(&bytes[0..4], b"RAY1");
         assert_eq!(read_rays(&bytes).unwrap(), r);
+    }
+
+    #[test]
+    fn ray_count_checks_header_length_and_limit_only() {
+        let bytes = write_rays(&rays());
+        assert_eq!(ray_count(&bytes, 5).unwrap(), 5);
+        assert!(matches!(
+            ray_count(&bytes, 4),
+            Err(BinaryError::TooMany {
+                count: 5,
+                limit: 4,
+                ..
+            })
+        ));
+        assert!(matches!(
+            ray_count(&bytes[..bytes.len() - 1], 5),
+            Err(BinaryError::WrongLength { .. })
+        ));
+        assert!(matches!(
+            ray_count(&bytes[..10], 5),
+            Err(BinaryError::ShortHeader { len: 10, .. })
+        ));
+        let mut wrong = bytes.clone();
+        wrong[0] = b'X';
+        assert!(matches!(
+            ray_count(&wrong, 5),
+            Err(BinaryError::WrongMagic { .. })
+        ));
+        // A NaN ray is left to the trace's `invalid` policy.
+        let mut nan = rays();
+        nan[2].dir[1] = f32::NAN;
+        assert_eq!(ray_count(&write_rays(&nan), 5).unwrap(), 5);
     }
 
     #[test]

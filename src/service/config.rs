@@ -79,6 +79,12 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_RESULT_TTL", default_value_t = 86_400)]
     pub result_ttl: u64,
 
+    /// Newest geometry versions of a scene kept, the latest included (16). Version 1 (the
+    /// upload) and versions a job names are kept as well; older ones are deleted as new
+    /// ones arrive and then answer 404. 0: keep every version.
+    #[arg(long, env = "RAYD_KEEP_VERSIONS", default_value_t = 16)]
+    pub keep_versions: u32,
+
     /// Bytes of acceleration structures kept in memory for reuse (4 GiB).
     #[arg(long, env = "RAYD_CACHE_BYTES", default_value_t = 4 << 30)]
     pub cache_bytes: u64,

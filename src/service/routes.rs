@@ -18,8 +18,10 @@ use super::body::{read_body_limited, BodyReader};
 use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
-use crate::app::{App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, UploadKind};
-use crate::formats::binary::{write_tri, BinaryError, Ray1Sink};
+use crate::app::{
+    App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
+};
+use crate::formats::binary::{ray_count, BinaryError, Ray1Sink};
 use crate::jobs::JobError;
 use crate::store::StoreError;
 
@@ -318,10 +320,23 @@ async fn get_geometry(
     ApiPath(id): ApiPath<String>,
     ApiQuery(q): ApiQuery<GeometryQuery>,
 ) -> Result<Response, ApiError> {
-    let tris = app.triangles(&id, q.version, q.time).await?;
-    let mut resp = Response::new(Body::from(write_tri(&tris)));
-    resp.headers_mut()
-        .insert(header::CONTENT_TYPE, HeaderValue::from_static(TRI));
+    let (body, len) = match app.triangles_tri1(&id, q.version, q.time).await? {
+        Tri1Body::Stored { file, len } => (
+            Body::from_stream(tokio_util::io::ReaderStream::with_capacity(
+                file,
+                RESULT_CHUNK,
+            )),
+            len,
+        ),
+        Tri1Body::Encoded(bytes) => {
+            let len = bytes.len() as u64;
+            (Body::from(bytes), len)
+        }
+    };
+    let mut resp = Response::new(body);
+    let h = resp.headers_mut();
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(TRI));
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
     Ok(resp)
 }
 
@@ -348,6 +363,9 @@ async fn trace(
     app.scene(&id).await?;
     if prefers_async(&headers) {
         let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
+        // The checks a synchronous trace makes as its body arrives, before anything is
+        // stored or queued: a batch over --max-rays is 413 here too, not a failed job.
+        ray_count(body.bytes(), state.config.max_rays as usize).map_err(binary_error)?;
         let view = app.submit_trace(&id, params, body.bytes().clone()).await?;
         let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
         resp.headers_mut()
@@ -541,6 +559,9 @@ struct FrameParam {
     frame: Option<usize>,
 }
 
+/// Bytes read from a stored file (a result, a geometry version) at a time while it is sent.
+const RESULT_CHUNK: usize = 256 << 10;
+
 /// `GET /v1/jobs/{job}/result`.
 async fn job_result(
     Extension(app): Extension<App>,
@@ -561,9 +582,22 @@ async fn job_result(
             .insert(header::ETAG, HeaderValue::from_str(&etag).expect("hex"));
         return Ok(resp);
     }
-    let bytes = app.store().get_blob(&blob).await.map_err(AppError::from)?;
-    let mut resp = Response::new(Body::from(bytes));
+    // Streamed from the file, not read into memory: a 16M-ray result is 256 MiB, and a
+    // request's memory outside the in-flight budget must stay small. The whole file is
+    // verified against its id first, so a corrupt blob is never served, not even in part.
+    let file = app.store().open_blob(&blob).await.map_err(AppError::from)?;
+    let len = file
+        .metadata()
+        .await
+        .map_err(|e| AppError::Internal(format!("result {blob}: {e}")))?
+        .len();
+    let body = Body::from_stream(tokio_util::io::ReaderStream::with_capacity(
+        file,
+        RESULT_CHUNK,
+    ));
+    let mut resp = Response::new(body);
     let h = resp.headers_mut();
+    h.insert(header::CONTENT_LENGTH, HeaderValue::from(len));
     h.insert(
         header::CONTENT_TYPE,
         HeaderValue::from_str(&content_type).unwrap_or(HeaderValue::from_static(OCTET)),

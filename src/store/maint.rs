@@ -124,6 +124,62 @@ impl Store {
         .await
     }
 
+    /// Waits until versions deleted by `keep_versions` have left blobs for
+    /// [`Store::collect_pruned`].
+    pub async fn pruned_waiting(&self) {
+        self.inner.pruned_ready.notified().await;
+    }
+
+    /// Deletes the blob files of versions that `keep_versions` deleted, without waiting for
+    /// `gc_grace`, unless a record names them (the same positions sent again as a later
+    /// version, or uploaded as a scene). Holds the GC gate exclusively, as [`Store::gc`]
+    /// does, so no record can commit naming one of them meanwhile. A caller that stored
+    /// the same bytes and has not yet committed its record finds the blob gone
+    /// (`NotFound { what: "blob" }`) and stores it again: the bytes are never lost.
+    pub async fn collect_pruned(&self) -> Result<GcReport> {
+        let doomed =
+            std::mem::take(&mut *self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner()));
+        let mut report = GcReport::default();
+        if doomed.is_empty() {
+            return Ok(report);
+        }
+        let _gate = self.inner.gc_gate.write().await;
+        let mut unreferenced = Vec::new();
+        for id in doomed {
+            let named: bool = sqlx::query_scalar(
+                "SELECT EXISTS (SELECT 1 FROM scene_versions WHERE blob = ?1) \
+                 OR EXISTS (SELECT 1 FROM jobs WHERE result_blob = ?1 OR input_blob = ?1) \
+                 OR EXISTS (SELECT 1 FROM job_results WHERE blob = ?1)",
+            )
+            .bind(id.as_str())
+            .fetch_one(&self.inner.reader)
+            .await?;
+            if named {
+                report.referenced += 1;
+            } else {
+                unreferenced.push(id);
+            }
+        }
+        let blobs = Arc::clone(&self.inner.blobs);
+        blocking(&self.inner.dir, move || {
+            let mut touched = HashSet::new();
+            for id in unreferenced {
+                let path = blobs.path(&id);
+                let freed = blobs.delete(&id)?;
+                if freed > 0 {
+                    report.deleted += 1;
+                    report.freed_bytes += freed;
+                    touched.insert(path.parent().map(Path::to_path_buf));
+                }
+            }
+            for dir in touched.into_iter().flatten() {
+                sync_dir(&dir)?;
+            }
+            Ok(report)
+        })
+        .await
+    }
+
     /// Writes a consistent copy of the store to `dest` (a new or empty directory) while the
     /// store stays in use: the database through SQLite's `VACUUM INTO` (one read snapshot),
     /// then every blob that snapshot names, verified while copied. `dest` then opens as a

@@ -64,6 +64,11 @@ pub struct StoreOptions {
     pub max_db_bytes: Option<u64>,
     /// How long a statement waits for a lock inside SQLite before failing.
     pub busy_timeout: Duration,
+    /// How many of a scene's newest versions (the latest included) are kept besides
+    /// version 1 and the versions a job names; older ones are deleted as newer ones
+    /// arrive, and their blobs go at the next [`Store::gc`]. A client that sends new
+    /// positions every frame would otherwise fill the disk. `None` keeps every version.
+    pub keep_versions: Option<u32>,
 }
 
 impl Default for StoreOptions {
@@ -74,6 +79,7 @@ impl Default for StoreOptions {
             max_bytes: None,
             max_db_bytes: None,
             busy_timeout: Duration::from_secs(5),
+            keep_versions: None,
         }
     }
 }
@@ -128,6 +134,12 @@ struct Inner {
     /// and exclusively by GC while it decides and deletes: so GC never deletes a blob that
     /// a concurrent upload has just renewed or a record has just referenced.
     gc_gate: RwLock<()>,
+    /// Blobs of versions deleted by `keep_versions`, for [`Store::collect_pruned`] to
+    /// delete at once rather than after `gc_grace` (a client sending a version a frame
+    /// would otherwise keep 15 minutes of frames on disk).
+    pruned: std::sync::Mutex<Vec<BlobId>>,
+    /// Woken when `pruned` gains blobs.
+    pruned_ready: tokio::sync::Notify,
     /// The flock on `DIR/lock`; released when the last clone drops (or the process dies).
     _lock: File,
 }
@@ -178,6 +190,8 @@ impl Store {
                 writer,
                 reader,
                 gc_gate: RwLock::new(()),
+                pruned: std::sync::Mutex::new(Vec::new()),
+                pruned_ready: tokio::sync::Notify::new(),
                 _lock: lock,
             }),
         })

@@ -31,6 +31,15 @@ pub struct NewScene {
 /// enough that a client cannot fill the database through them.
 pub(crate) const MAX_LABEL: usize = 1024;
 
+/// The condition, on a `scene_versions` row, that no job names it: a job's record keeps
+/// its version (and, by the foreign key's cascade, would go with it).
+macro_rules! unused_version {
+    () => {
+        "NOT EXISTS (SELECT 1 FROM jobs WHERE jobs.scene_id = scene_versions.scene_id \
+         AND jobs.version = scene_versions.version)"
+    };
+}
+
 macro_rules! scene_cols {
     () => {
         "id, content_type, name, summary, created_at, latest_version"
@@ -164,10 +173,17 @@ impl Store {
         Ok((scenes, next))
     }
 
-    /// Adds a version naming `blob` (TRI1 positions, already stored) and returns it. The
-    /// number is the scene's latest plus one, allocated in the same transaction, so
-    /// concurrent adds get consecutive numbers.
-    pub async fn add_version(&self, scene_id: &str, blob: &BlobId) -> Result<VersionRecord> {
+    /// Adds a version naming `blob` (TRI1 positions, already stored) and returns it, with
+    /// the numbers of the older versions this deleted to keep the scene within
+    /// [`StoreOptions::keep_versions`](super::StoreOptions::keep_versions). The number is
+    /// the scene's latest plus one, allocated in the same transaction, so concurrent adds
+    /// get consecutive numbers; the pruning shares that transaction too, so a frame's
+    /// update costs one commit.
+    pub async fn add_version(
+        &self,
+        scene_id: &str,
+        blob: &BlobId,
+    ) -> Result<(VersionRecord, Vec<i64>)> {
         let scene = BlobId::parse_or_not_found(scene_id, "scene")?;
         let _gate = self.inner.gc_gate.read().await;
         self.require_blobs(vec![blob.clone()]).await?;
@@ -191,13 +207,74 @@ impl Store {
         .bind(now)
         .execute(&mut *tx)
         .await?;
+        let mut pruned = Vec::new();
+        if let Some(keep) = self.inner.options.keep_versions {
+            pruned = sqlx::query(concat!(
+                "DELETE FROM scene_versions WHERE scene_id = ? AND version > 1 AND version <= ? AND ",
+                unused_version!(),
+                " RETURNING scene_id, version, blob, created_at"
+            ))
+            .bind(scene.as_str())
+            .bind(version - i64::from(keep.max(1)))
+            .fetch_all(&mut *tx)
+            .await?
+            .iter()
+            .map(version_from_row)
+            .collect::<Result<_>>()?;
+        }
         tx.commit().await?;
-        Ok(VersionRecord {
-            scene_id: scene.to_string(),
-            version,
-            blob: blob.to_string(),
-            created_at: now,
-        })
+        let mut numbers: Vec<i64> = pruned.iter().map(|v| v.version).collect();
+        numbers.sort_unstable();
+        self.doom_blobs(&pruned);
+        Ok((
+            VersionRecord {
+                scene_id: scene.to_string(),
+                version,
+                blob: blob.to_string(),
+                created_at: now,
+            },
+            numbers,
+        ))
+    }
+
+    /// Deletes, in every scene, the versions that [`Store::add_version`] would have pruned
+    /// but a job still named then (the job has since expired or been deleted). Returns the
+    /// `(scene, version)` pairs deleted; their blobs go at the next [`Store::gc`]. Does
+    /// nothing when every version is kept.
+    pub async fn prune_versions(&self) -> Result<Vec<(String, i64)>> {
+        let Some(keep) = self.inner.options.keep_versions else {
+            return Ok(Vec::new());
+        };
+        let pruned: Vec<VersionRecord> = sqlx::query(concat!(
+            "DELETE FROM scene_versions WHERE version > 1 AND version <= \
+             (SELECT latest_version FROM scenes WHERE scenes.id = scene_versions.scene_id) - ? AND ",
+            unused_version!(),
+            " RETURNING scene_id, version, blob, created_at"
+        ))
+        .bind(i64::from(keep.max(1)))
+        .fetch_all(&self.inner.writer)
+        .await?
+        .iter()
+        .map(version_from_row)
+        .collect::<Result<_>>()?;
+        self.doom_blobs(&pruned);
+        let mut pairs: Vec<(String, i64)> = pruned
+            .into_iter()
+            .map(|v| (v.scene_id, v.version))
+            .collect();
+        pairs.sort_unstable();
+        Ok(pairs)
+    }
+
+    /// Hands the blobs of deleted versions to [`Store::collect_pruned`].
+    fn doom_blobs(&self, pruned: &[VersionRecord]) {
+        if pruned.is_empty() {
+            return;
+        }
+        let mut doomed = self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner());
+        doomed.extend(pruned.iter().filter_map(|v| BlobId::parse(&v.blob)));
+        drop(doomed);
+        self.inner.pruned_ready.notify_one();
     }
 
     /// One version of a scene.

@@ -424,7 +424,7 @@ async fn concurrent_versions_get_consecutive_numbers() {
         let id = s.id.clone();
         tasks.push(tokio::spawn(async move {
             let blob = store.put_blob(vec![i; 36]).await.unwrap();
-            store.add_version(&id, &blob).await.unwrap()
+            store.add_version(&id, &blob).await.unwrap().0
         }));
     }
     let mut versions = Vec::new();
@@ -463,6 +463,134 @@ async fn concurrent_versions_get_consecutive_numbers() {
         Err(StoreError::NotFound { what: "blob", .. })
     ));
     assert_eq!(store.get_scene(&s.id).await.unwrap().latest_version, 9);
+}
+
+/// With `keep_versions`, each new version deletes those older than the newest `keep`,
+/// except version 1 and versions a job names; those go at the upkeep's `prune_versions`
+/// once their jobs are gone, and GC then frees their blobs.
+#[tokio::test]
+async fn old_versions_go_unless_a_job_names_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    // The default grace: the blobs of deleted versions go at once all the same.
+    let store = Store::open(
+        tmp.path(),
+        StoreOptions {
+            keep_versions: Some(2),
+            ..StoreOptions::default()
+        },
+    )
+    .await
+    .unwrap();
+    let s = scene(&store, b"moving").await;
+    let numbers = |vs: Vec<VersionRecord>| vs.iter().map(|v| v.version).collect::<Vec<_>>();
+    let mut blobs = Vec::new();
+    let mut pruned = Vec::new();
+    for i in 2..=7u8 {
+        // Version 7 repeats version 2's positions: the same blob.
+        let blob = store
+            .put_blob(vec![if i == 7 { 2 } else { i }; 36])
+            .await
+            .unwrap();
+        blobs.push(blob.clone());
+        let (v, p) = store.add_version(&s.id, &blob).await.unwrap();
+        assert_eq!(v.version, i64::from(i));
+        pruned.push(p);
+        if i == 3 {
+            // A job on version 3 keeps it past its turn.
+            store
+                .create_job(NewJob {
+                    version: 3,
+                    ..render_job(&s)
+                })
+                .await
+                .unwrap();
+        }
+    }
+    // Version 4 deleted 2; 5 would have deleted 3 (named by the job); 6 deleted 4, 7 5.
+    assert_eq!(
+        pruned,
+        vec![vec![], vec![], vec![2], vec![], vec![4], vec![5]]
+    );
+    assert_eq!(
+        numbers(store.list_versions(&s.id).await.unwrap()),
+        [1, 3, 6, 7]
+    );
+    assert!(matches!(
+        store.get_version(&s.id, 2).await,
+        Err(StoreError::NotFound {
+            what: "version",
+            ..
+        })
+    ));
+    // Nothing to prune while the job exists.
+    assert_eq!(store.prune_versions().await.unwrap(), vec![]);
+    let collected = store.collect_pruned().await.unwrap();
+    assert_eq!(
+        (collected.deleted, collected.referenced),
+        (2, 1),
+        "the blobs of versions 4 and 5; 2's is 7's too: {collected:?}"
+    );
+    let blob_of = |i: usize| store.get_blob(blobs[i].as_str());
+    assert!(blob_of(2).await.is_err());
+    assert!(blob_of(3).await.is_err());
+    for i in [0, 1, 4] {
+        assert_eq!(blob_of(i).await.unwrap().len(), 36, "blob {i}");
+    }
+    assert_eq!(store.collect_pruned().await.unwrap(), GcReport::default());
+
+    // Once the job has gone, the upkeep deletes version 3.
+    let jobs = store.list_jobs(10, None).await.unwrap().0;
+    assert_eq!(jobs.len(), 1);
+    store.cancel_job(&jobs[0].id).await.unwrap();
+    assert_eq!(
+        store.prune_versions().await.unwrap(),
+        vec![],
+        "a cancelled job's record keeps it"
+    );
+    store.delete_job(&jobs[0].id).await.unwrap();
+    assert_eq!(
+        store.prune_versions().await.unwrap(),
+        vec![(s.id.clone(), 3)]
+    );
+    assert_eq!(
+        numbers(store.list_versions(&s.id).await.unwrap()),
+        [1, 6, 7]
+    );
+    assert_eq!(store.collect_pruned().await.unwrap().deleted, 1);
+    assert!(blob_of(1).await.is_err());
+}
+
+/// A blob stored again while its deleted version's copy awaits `collect_pruned`, but not
+/// yet recorded, is collected all the same: recording it then fails with `NotFound`, never
+/// naming a missing file, and storing it again works (what the service's retry does).
+#[tokio::test]
+async fn a_pruned_blob_stored_again_before_its_record_must_be_stored_once_more() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = Store::open(
+        tmp.path(),
+        StoreOptions {
+            keep_versions: Some(1),
+            ..StoreOptions::default()
+        },
+    )
+    .await
+    .unwrap();
+    let s = scene(&store, b"frames").await;
+    let first = store.put_blob(vec![1u8; 36]).await.unwrap();
+    store.add_version(&s.id, &first).await.unwrap();
+    let second = store.put_blob(vec![2u8; 36]).await.unwrap();
+    assert_eq!(store.add_version(&s.id, &second).await.unwrap().1, vec![2]);
+    // Version 2's bytes arrive again and are stored; the collection runs before the record.
+    let again = store.put_blob(vec![1u8; 36]).await.unwrap();
+    assert_eq!(store.collect_pruned().await.unwrap().deleted, 1);
+    assert!(matches!(
+        store.add_version(&s.id, &again).await,
+        Err(StoreError::NotFound { what: "blob", .. })
+    ));
+    let again = store.put_blob(vec![1u8; 36]).await.unwrap();
+    let (v, pruned) = store.add_version(&s.id, &again).await.unwrap();
+    assert_eq!((v.version, pruned), (4, vec![3]));
+    assert_eq!(store.get_blob(again.as_str()).await.unwrap(), vec![1u8; 36]);
 }
 
 #[tokio::test]

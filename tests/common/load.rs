@@ -332,10 +332,18 @@ impl ServerProc {
             .and_then(|l| l.local_addr())
             .map_err(|e| format!("no free port: {e}"))?
             .port();
-        let mut args: Vec<String> = ["--threads", &threads.to_string(), "--grace", "3"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let keep = KEPT_VERSIONS.to_string();
+        let mut args: Vec<String> = [
+            "--threads",
+            &threads.to_string(),
+            "--grace",
+            "3",
+            "--keep-versions",
+            &keep,
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         args.extend(extra.iter().cloned());
         let s = ServerProc {
             bin: bin.to_path_buf(),
@@ -470,6 +478,12 @@ const VARIANTS: usize = 4;
 const RECENT_VERSIONS: usize = 8;
 /// After a restart, version 1 and this many latest versions are traced again.
 const CHECKED_VERSIONS: usize = 32;
+/// The server's `--keep-versions`: the versions traced must outlive the ones sent while
+/// they are picked (at most one per client in flight, committed or not), so this leaves a
+/// margin over `CHECKED_VERSIONS` as wide again. The run still deletes all the others, as
+/// a client sending positions every frame makes the server do.
+const KEPT_VERSIONS: usize = 2 * CHECKED_VERSIONS;
+const _: () = assert!(RECENT_VERSIONS < CHECKED_VERSIONS && CHECKED_VERSIONS < KEPT_VERSIONS);
 
 fn trace_request() -> TraceRequest {
     TraceRequest {
