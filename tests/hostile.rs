@@ -578,6 +578,28 @@ fn bodies_that_lie_or_never_end() {
     problem(&r.expect("an answer"), 408, &["body", "--body-timeout"]);
     assert!(took < Duration::from_secs(5), "{took:?}");
 
+    // A body trickled a few bytes at a time, never idle for --body-timeout: cut off once
+    // the waiting passes --body-timeout plus a second per --min-body-rate bytes (4096).
+    let c = raw(
+        s,
+        &format!(
+            "POST /v1/scenes HTTP/1.1\r\nHost: x\r\nContent-Type: {GLB}\r\nContent-Length: 4000000\r\n\r\n"
+        ),
+    );
+    let mut w = c.try_clone().unwrap();
+    let trickle = std::thread::spawn(move || {
+        for _ in 0..100 {
+            if w.write_all(&[0u8; 64]).is_err() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(300));
+        }
+    });
+    let (r, took) = answer(c);
+    problem(&r.expect("an answer"), 408, &["body", "--min-body-rate"]);
+    assert!(took < Duration::from_secs(5), "{took:?}");
+    trickle.join().unwrap();
+
     // A JSON body (render options) that stops half-way.
     let mut c = raw(
         s,

@@ -218,9 +218,9 @@ impl BodyReader {
             };
             let frame = frame.map_err(|e| {
                 let e: &(dyn std::error::Error + 'static) = &e;
-                match idle_cause(e) {
-                    Some(idle) => ApiError::request_timeout(format!(
-                        "the request body stopped after {} bytes: {idle}",
+                match timeout_cause(e) {
+                    Some(why) => ApiError::request_timeout(format!(
+                        "the request body was cut off after {} bytes: {why}",
                         self.read
                     )),
                     None => ApiError::bad_request(format!(
@@ -251,34 +251,81 @@ impl BodyReader {
     }
 }
 
-/// The error a request body gives when no byte arrived for its idle timeout.
+/// Why a request body was cut off for being too slow: each is answered 408.
 #[derive(Debug, thiserror::Error)]
-#[error("no byte arrived for {} s (--body-timeout)", .0.as_secs_f64())]
-pub struct BodyIdle(pub Duration);
+pub enum BodyTimeout {
+    /// No byte arrived for the idle timeout.
+    #[error("no byte arrived for {} s (--body-timeout)", .0.as_secs_f64())]
+    Idle(Duration),
+    /// The body came slower than the minimum rate, on average, beyond the idle timeout's
+    /// allowance.
+    #[error(
+        "{received} bytes arrived in {:.1} s of waiting for them, slower than {min_rate} \
+         bytes a second after the first {} s (--min-body-rate, --body-timeout)",
+        .waited.as_secs_f64(), .allowance.as_secs_f64()
+    )]
+    Slow {
+        /// Bytes received.
+        received: u64,
+        /// Time spent waiting for them.
+        waited: Duration,
+        /// `--min-body-rate`.
+        min_rate: u64,
+        /// `--body-timeout`: the waiting any body gets before the rate counts.
+        allowance: Duration,
+    },
+}
 
-/// The [`BodyIdle`] in `e` or its sources, if the body failed by going idle.
-pub fn idle_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a BodyIdle> {
+/// The [`BodyTimeout`] in `e` or its sources, if the body was cut off for being slow.
+pub fn timeout_cause<'a>(e: &'a (dyn std::error::Error + 'static)) -> Option<&'a BodyTimeout> {
     let mut cur = Some(e);
     while let Some(err) = cur {
-        if let Some(idle) = err.downcast_ref::<BodyIdle>() {
-            return Some(idle);
+        if let Some(t) = err.downcast_ref::<BodyTimeout>() {
+            return Some(t);
         }
         cur = err.source();
     }
     None
 }
 
-/// A request body that fails with [`BodyIdle`] when the server has waited `idle` for its
-/// next byte. Only time spent waiting counts: a handler that pauses between reads (a trace
-/// feeding the engine) is not charged for its own pauses.
-struct IdleTimeoutBody {
-    inner: Body,
-    idle: Duration,
-    sleep: Pin<Box<tokio::time::Sleep>>,
-    waiting: bool,
+/// How long the server waits for a request body: `idle` for each next byte, and in all
+/// `idle` plus a second for each `min_rate` bytes received (Apache's `RequestReadTimeout`
+/// `body=…,MinRate=…` rule), so that a client trickling a byte now and then cannot hold
+/// its connection, memory budget, per-client slot and queue place for ever.
+#[derive(Debug, Clone, Copy)]
+pub struct BodyPace {
+    /// `--body-timeout`.
+    pub idle: Duration,
+    /// `--min-body-rate`, bytes a second; 0: no rate.
+    pub min_rate: u64,
 }
 
-impl http_body::Body for IdleTimeoutBody {
+/// A request body that fails with [`BodyTimeout`] when the server has waited `idle` for
+/// its next byte, or longer in all than the rate allows. Only time spent waiting counts:
+/// a handler that pauses between reads (a trace feeding the engine) is not charged for
+/// its own pauses.
+struct PacedBody {
+    inner: Body,
+    pace: BodyPace,
+    sleep: Pin<Box<tokio::time::Sleep>>,
+    /// When the current wait began, while waiting.
+    waiting_since: Option<tokio::time::Instant>,
+    /// Time spent waiting in earlier waits.
+    waited: Duration,
+    received: u64,
+}
+
+impl PacedBody {
+    /// The waiting left before the rate is broken (`None`: no rate).
+    fn rate_allowance(&self) -> Option<Duration> {
+        (self.pace.min_rate > 0).then(|| {
+            let earned = Duration::from_secs_f64(self.received as f64 / self.pace.min_rate as f64);
+            (self.pace.idle + earned).saturating_sub(self.waited)
+        })
+    }
+}
+
+impl http_body::Body for PacedBody {
     type Data = Bytes;
     type Error = axum::Error;
 
@@ -287,18 +334,44 @@ impl http_body::Body for IdleTimeoutBody {
         cx: &mut Context<'_>,
     ) -> Poll<Option<Result<http_body::Frame<Bytes>, axum::Error>>> {
         let this = &mut *self;
-        if !this.waiting {
-            let deadline = tokio::time::Instant::now() + this.idle;
-            this.sleep.as_mut().reset(deadline);
-            this.waiting = true;
-        }
+        let now = tokio::time::Instant::now();
+        let since = match this.waiting_since {
+            Some(since) => since,
+            None => {
+                let wait = this
+                    .rate_allowance()
+                    .map_or(this.pace.idle, |left| left.min(this.pace.idle));
+                this.sleep.as_mut().reset(now + wait);
+                this.waiting_since = Some(now);
+                now
+            }
+        };
         match Pin::new(&mut this.inner).poll_frame(cx) {
             Poll::Ready(frame) => {
-                this.waiting = false;
+                this.waited += now.saturating_duration_since(since);
+                this.waiting_since = None;
+                if let Some(Ok(f)) = &frame {
+                    if let Some(data) = f.data_ref() {
+                        this.received += data.len() as u64;
+                    }
+                }
                 Poll::Ready(frame)
             }
             Poll::Pending => match this.sleep.as_mut().poll(cx) {
-                Poll::Ready(()) => Poll::Ready(Some(Err(axum::Error::new(BodyIdle(this.idle))))),
+                Poll::Ready(()) => {
+                    let waited_now = tokio::time::Instant::now().saturating_duration_since(since);
+                    let e = if waited_now >= this.pace.idle {
+                        BodyTimeout::Idle(this.pace.idle)
+                    } else {
+                        BodyTimeout::Slow {
+                            received: this.received,
+                            waited: this.waited + waited_now,
+                            min_rate: this.pace.min_rate,
+                            allowance: this.pace.idle,
+                        }
+                    };
+                    Poll::Ready(Some(Err(axum::Error::new(e))))
+                }
                 Poll::Pending => Poll::Pending,
             },
         }
@@ -313,16 +386,19 @@ impl http_body::Body for IdleTimeoutBody {
     }
 }
 
-/// Middleware: every request body gets the idle timeout `idle` (`--body-timeout`), so a
-/// client that declares more bytes than it sends, or a chunked body that never ends, holds
-/// its connection, its memory budget and its per-client slot for at most that long.
-pub async fn idle_timeout(State(idle): State<Duration>, req: Request, next: Next) -> Response {
+/// Middleware: every request body gets `pace` (`--body-timeout`, `--min-body-rate`), so a
+/// client that declares more bytes than it sends, a chunked body that never ends, or a
+/// body trickled a byte at a time holds its connection, its memory budget and its
+/// per-client slot for a bounded time.
+pub async fn paced(State(pace): State<BodyPace>, req: Request, next: Next) -> Response {
     let (parts, body) = req.into_parts();
-    let body = Body::new(IdleTimeoutBody {
+    let body = Body::new(PacedBody {
         inner: body,
-        idle,
-        sleep: Box::pin(tokio::time::sleep(idle)),
-        waiting: false,
+        pace,
+        sleep: Box::pin(tokio::time::sleep(pace.idle)),
+        waiting_since: None,
+        waited: Duration::ZERO,
+        received: 0,
     });
     next.run(Request::from_parts(parts, body)).await
 }

@@ -126,6 +126,13 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_BODY_TIMEOUT", default_value_t = 30.0, value_parser = parse_seconds)]
     pub body_timeout: f64,
 
+    /// Bytes a second that a request body must average beyond the first --body-timeout
+    /// seconds of waiting for it: the server waits for a body at most --body-timeout
+    /// seconds plus a second for each this many bytes received, then answers 408. 0: no
+    /// rate, only the idle timeout.
+    #[arg(long, env = "RAYD_MIN_BODY_RATE", default_value_t = 4096)]
+    pub min_body_rate: u64,
+
     /// Bytes that stored blobs (uploads, geometry versions, results) may occupy in the data
     /// directory; past it, a write fails as on a full disk (507) and nothing is half-stored.
     /// Default: none (only the disk limits).
@@ -213,6 +220,14 @@ impl ServeArgs {
     /// `--body-timeout` as a duration.
     pub fn body_timeout(&self) -> Duration {
         Duration::from_secs_f64(self.body_timeout)
+    }
+
+    /// How long request bodies may take: `--body-timeout` and `--min-body-rate`.
+    pub fn body_pace(&self) -> crate::service::body::BodyPace {
+        crate::service::body::BodyPace {
+            idle: self.body_timeout(),
+            min_rate: self.min_body_rate,
+        }
     }
 
     /// `--header-timeout` as a duration.

@@ -76,8 +76,8 @@ fn bytes_rejection(r: BytesRejection) -> ApiError {
             "a JSON body may be at most 2 MiB (2097152 bytes)",
             2 * 1024 * 1024,
         )
-    } else if let Some(idle) = super::body::idle_cause(&r) {
-        ApiError::request_timeout(format!("the request body stopped: {idle}"))
+    } else if let Some(why) = super::body::timeout_cause(&r) {
+        ApiError::request_timeout(format!("the request body was cut off: {why}"))
     } else {
         ApiError::bad_request(format!(
             "the request body could not be read: {}",

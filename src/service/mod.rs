@@ -239,10 +239,7 @@ pub fn router(state: AppState, v1: Routes) -> Router {
         .merge(v1)
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
-        .layer(from_fn_with_state(
-            state.config.body_timeout(),
-            body::idle_timeout,
-        ))
+        .layer(from_fn_with_state(state.config.body_pace(), body::paced))
         .layer(from_fn_with_state(
             state.metrics.clone(),
             metrics::record_request,
