@@ -441,18 +441,6 @@ async fn readiness_follows_the_phase() {
     );
     s.ready.set_ready();
     assert_eq!(send(&app, get("/readyz")).await.status(), 200);
-    // While ready, work the queue would refuse makes it unready too.
-    let full = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
-    let f = full.clone();
-    s.ready.set_refusal(Box::new(move || {
-        f.load(std::sync::atomic::Ordering::Relaxed)
-            .then(|| "the queue is full (64 jobs waiting)".to_string())
-    }));
-    let res = send(&app, get("/readyz")).await;
-    assert!(res.headers().contains_key(header::RETRY_AFTER));
-    assert!(problem(res, 503).await.detail.contains("queue is full"));
-    full.store(false, std::sync::atomic::Ordering::Relaxed);
-    assert_eq!(send(&app, get("/readyz")).await.status(), 200);
     s.ready.set_draining();
     s.ready.set_ready();
     let res = send(&app, get("/readyz")).await;

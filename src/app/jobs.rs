@@ -21,7 +21,13 @@ use crate::jobs::render::FrameInput;
 use crate::jobs::{sched, trace, CancelToken, JobError};
 use crate::render::surface::Surfaces;
 use crate::render::texture::{DecodedOnce, TextureSet};
-use crate::store::{BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob};
+use crate::store::{
+    BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob, StoreError,
+};
+
+/// How many times a job that named no version takes the latest again after the one it took
+/// was deleted by newer versions before its record was made (`--keep-versions`).
+const LATEST_TRIES: u32 = 3;
 
 /// A job as the API shows it (contract §5).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -188,21 +194,36 @@ impl App {
         }
         // Checks the scene, version and time now, so that a bad one is this request's
         // error and not the job's.
-        let (geometry, _) = self.geometry(scene, spec.version, spec.time).await?;
+        let asked = spec.version;
+        let (geometry, _) = self.geometry(scene, asked, spec.time).await?;
         let mut spec = spec;
-        spec.version = Some(geometry.key.version);
         let priority = spec.priority;
         let ticket = self.engine().scheduler().admit(priority as u16, false)?;
-        let new = NewJob {
-            kind: JobKind::Render,
-            scene_id: scene.to_string(),
-            version: geometry.key.version as i64,
-            request: serde_json::to_string(&spec).expect("a spec serialises"),
-            priority,
-            idempotency_key,
-            input_blob: None,
+        let mut version = geometry.key.version;
+        let mut tries = 0;
+        let (record, created) = loop {
+            spec.version = Some(version);
+            let new = NewJob {
+                kind: JobKind::Render,
+                scene_id: scene.to_string(),
+                version: i64::from(version),
+                request: serde_json::to_string(&spec).expect("a spec serialises"),
+                priority,
+                idempotency_key: idempotency_key.clone(),
+                input_blob: None,
+            };
+            match self.store().create_job(new).await {
+                // The latest version, taken for a request that named none, was deleted
+                // by newer ones meanwhile (`--keep-versions`): take the latest again.
+                Err(StoreError::NotFound {
+                    what: "version", ..
+                }) if asked.is_none() && tries < LATEST_TRIES => {
+                    tries += 1;
+                    version = self.geometry(scene, None, spec.time).await?.0.key.version;
+                }
+                r => break r?,
+            }
         };
-        let (record, created) = self.store().create_job(new).await?;
         if created {
             if let Some(url) = &spec.callback {
                 // Owed from now on, so that a crash before the job ends still delivers.
@@ -230,27 +251,42 @@ impl App {
         params: TraceParams,
         rays_body: bytes::Bytes,
     ) -> Result<JobView, AppError> {
-        let (geometry, _) = self.geometry(scene, params.version, params.time).await?;
+        let asked = params.version;
+        let (geometry, _) = self.geometry(scene, asked, params.time).await?;
         let ticket = self.engine().scheduler().admit(50, false)?;
         let rays_blob = self.store().put_blob(rays_body).await?;
-        let mut params = params;
-        params.version = Some(geometry.key.version);
-        let request = TraceJobRequest {
-            params,
-            rays_blob: rays_blob.to_string(),
+        let mut version = geometry.key.version;
+        let mut tries = 0;
+        let (record, request) = loop {
+            let mut params = params;
+            params.version = Some(version);
+            let request = TraceJobRequest {
+                params,
+                rays_blob: rays_blob.to_string(),
+            };
+            let created = self
+                .store()
+                .create_job(NewJob {
+                    kind: JobKind::Trace,
+                    scene_id: scene.to_string(),
+                    version: i64::from(version),
+                    request: serde_json::to_string(&request).expect("serialises"),
+                    priority: 50,
+                    idempotency_key: None,
+                    input_blob: Some(rays_blob.clone()),
+                })
+                .await;
+            match created {
+                // As for renders: the latest version went meanwhile; take it again.
+                Err(StoreError::NotFound {
+                    what: "version", ..
+                }) if asked.is_none() && tries < LATEST_TRIES => {
+                    tries += 1;
+                    version = self.geometry(scene, None, params.time).await?.0.key.version;
+                }
+                r => break (r?.0, request),
+            }
         };
-        let (record, _) = self
-            .store()
-            .create_job(NewJob {
-                kind: JobKind::Trace,
-                scene_id: scene.to_string(),
-                version: geometry.key.version as i64,
-                request: serde_json::to_string(&request).expect("serialises"),
-                priority: 50,
-                idempotency_key: None,
-                input_blob: Some(rays_blob.clone()),
-            })
-            .await?;
         self.start(record.clone(), Work::Trace(request), ticket);
         Ok(JobView::from_record(&record))
     }

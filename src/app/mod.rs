@@ -65,6 +65,9 @@ pub enum AppError {
     /// The CPU work was lost (the pool went away).
     #[error("internal: {0}")]
     Internal(String),
+    /// Work that lost a race it may win if tried again soon (503 with `Retry-After`).
+    #[error("{0}")]
+    Busy(String),
 }
 
 /// Hears about finished work, for monitoring: the service hands its metrics in here, so

@@ -303,8 +303,8 @@ pub enum Tri1Body {
 
 /// Stores `bytes` as a blob, then commits the record `record` makes of it. If the blob
 /// vanished in between (the blob of a deleted version with the same bytes, collected at
-/// once by [`crate::store::Store::collect_pruned`]), stores it again: twice more at most,
-/// since each try needs a version deleted and collected within milliseconds.
+/// once by [`crate::store::Store::collect_pruned`]), stores it again: three tries in all,
+/// since each loss needs a version deleted and collected within milliseconds; then 503.
 async fn stored_then_recorded<T, F, Fut>(
     store: &crate::store::Store,
     bytes: bytes::Bytes,
@@ -314,14 +314,18 @@ where
     F: Fn(crate::store::Store, BlobId) -> Fut,
     Fut: std::future::Future<Output = Result<T, StoreError>>,
 {
-    let mut tries = 0;
-    loop {
+    for _ in 0..3 {
         let blob = store.put_blob(bytes.clone()).await?;
         match record(store.clone(), blob).await {
-            Err(StoreError::NotFound { what: "blob", .. }) if tries < 2 => tries += 1,
+            Err(StoreError::NotFound { what: "blob", .. }) => {}
             r => return Ok(r?),
         }
     }
+    Err(AppError::Busy(
+        "the same bytes were being deleted (an old version's) while they were stored; \
+         send them again"
+            .into(),
+    ))
 }
 
 impl App {
@@ -554,6 +558,14 @@ impl App {
         self.inner
             .scenes
             .keep_geometry(key.clone(), Arc::clone(&tris), Arc::clone(&cameras));
+        if version >= 2 {
+            // A newer version may have deleted this one while it was read: then it must
+            // not stay in memory, answering there as it no longer does from the store.
+            if let Err(e) = self.store().get_version(id, i64::from(version)).await {
+                self.inner.scenes.forget_versions(id, &[i64::from(version)]);
+                return Err(e.into());
+            }
+        }
         Ok((
             Geometry {
                 key,

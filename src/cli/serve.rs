@@ -90,12 +90,6 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         demo(&app).await;
     }
     state.metrics.sample_with(sampler(Arc::clone(&engine)));
-    // `/readyz` answers 503 while new work would be refused (a full queue), so that a load
-    // balancer sends it elsewhere instead of into 503s.
-    let sched = Arc::clone(engine.scheduler());
-    state.ready.set_refusal(Box::new(move || {
-        sched.refusal().map(|e| format!("new work is refused: {e}"))
-    }));
     spawn_housekeeping(state.clone(), app.clone());
     // The signal reaches the engine at once: no job starts from then on, and the ones
     // running get what is left of the grace period once the connections have drained.
@@ -182,9 +176,14 @@ fn spawn_housekeeping(state: AppState, app: crate::app::App) {
             tokio::select! {
                 _ = tick.tick() => {}
                 _ = app.store().pruned_waiting() => {
-                    // Versions just deleted by a newer one: their blobs go now, not after
-                    // the collection's grace.
-                    if let Err(e) = app.store().collect_pruned().await {
+                    // Versions just deleted by newer ones: their blobs go within a second,
+                    // not after the collection's grace; a second's worth at a time, and
+                    // only when no upload holds the gate.
+                    tokio::select! {
+                        _ = tokio::time::sleep(Duration::from_secs(1)) => {}
+                        _ = state.shutdown.cancelled() => break,
+                    }
+                    if let Err(e) = app.store().collect_pruned(false).await {
                         tracing::warn!("deleting old versions' blobs failed: {e}");
                     }
                     continue;
@@ -200,7 +199,7 @@ fn spawn_housekeeping(state: AppState, app: crate::app::App) {
                 Ok(n) => tracing::info!(versions = n, "old geometry versions deleted"),
                 Err(e) => tracing::warn!("deleting old geometry versions failed: {e}"),
             }
-            if let Err(e) = store.collect_pruned().await {
+            if let Err(e) = store.collect_pruned(true).await {
                 tracing::warn!("deleting old versions' blobs failed: {e}");
             }
             if let Err(e) = store.gc().await {

@@ -159,19 +159,6 @@ impl Scheduler {
         self.lock().queued
     }
 
-    /// Why new work would be refused now, if it would: the queue is full, or the
-    /// scheduler is shutting down (what `/readyz` reports).
-    pub fn refusal(&self) -> Option<JobError> {
-        let s = self.lock();
-        if s.shutting_down {
-            Some(JobError::ShuttingDown)
-        } else if s.queued >= self.max_queued {
-            Some(JobError::QueueFull(s.queued))
-        } else {
-            None
-        }
-    }
-
     /// Jobs that have started and not finished.
     pub fn running(&self) -> usize {
         self.lock().running

@@ -12,7 +12,7 @@
 use glam::{Vec2, Vec4};
 
 use super::mipmap::{across_levels, Filtering, Pyramid};
-use super::texture::{decode8, filter_level, SLOTS, SLOT_IS_COLOUR};
+use super::texture::{decode_tables, filter_level, SLOTS, SLOT_IS_COLOUR};
 use crate::scene::Filter;
 
 /// Fewest textures a bundle takes: its records hold four, so with three at most a quarter
@@ -132,6 +132,7 @@ impl Bundle {
     #[inline]
     fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
         let l = &self.levels[k];
+        let tables = decode_tables();
         filter_level(
             uv,
             (l.width, l.height),
@@ -141,7 +142,7 @@ impl Bundle {
                 let p = l.texels[y as usize * l.width as usize + x as usize];
                 std::array::from_fn(|s| {
                     if mask[s] {
-                        decode8(p[s], SLOT_IS_COLOUR[s])
+                        tables.decode(p[s], SLOT_IS_COLOUR[s])
                     } else {
                         Vec4::ZERO
                     }

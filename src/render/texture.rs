@@ -382,16 +382,41 @@ fn encode_f32(v: Vec4, srgb: bool) -> [f32; 4] {
 /// alpha (and data) as `code / 255`.
 #[inline]
 pub(crate) fn decode8(p: [u8; 4], srgb: bool) -> Vec4 {
-    if srgb {
-        let lut = &*SRGB_TO_LINEAR;
+    DECODE8.decode(p, srgb)
+}
+
+/// Every 8-bit code's value, linear (`c / 255`) and sRGB-decoded: a decode is four loads,
+/// no division. A filtered lookup of a material's four textures decodes 128 codes, so
+/// callers in a loop take the tables once ([`decode_tables`]) rather than through the
+/// lazy static each time.
+pub(crate) struct Decode8 {
+    linear: [f32; 256],
+    srgb: [f32; 256],
+}
+
+static DECODE8: std::sync::LazyLock<Decode8> = std::sync::LazyLock::new(|| Decode8 {
+    linear: std::array::from_fn(|i| unit8(i as u8)),
+    srgb: *SRGB_TO_LINEAR,
+});
+
+/// The decode tables, initialised.
+#[inline]
+pub(crate) fn decode_tables() -> &'static Decode8 {
+    &DECODE8
+}
+
+impl Decode8 {
+    /// An 8-bit RGBA texel as linear values: colour channels through the sRGB curve when
+    /// `srgb`, alpha (and data) as `c / 255`, as the `image` crate converts them.
+    #[inline(always)]
+    pub(crate) fn decode(&self, p: [u8; 4], srgb: bool) -> Vec4 {
+        let rgb = if srgb { &self.srgb } else { &self.linear };
         Vec4::new(
-            lut[p[0] as usize],
-            lut[p[1] as usize],
-            lut[p[2] as usize],
-            unit8(p[3]),
+            rgb[p[0] as usize],
+            rgb[p[1] as usize],
+            rgb[p[2] as usize],
+            self.linear[p[3] as usize],
         )
-    } else {
-        Vec4::new(unit8(p[0]), unit8(p[1]), unit8(p[2]), unit8(p[3]))
     }
 }
 

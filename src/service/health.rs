@@ -2,9 +2,8 @@
 //!
 //! `/healthz` answers 200 whenever the process answers at all: a failing liveness probe
 //! means "restart me". `/readyz` answers 200 only while [`Ready`] says the store is loaded
-//! and work is accepted, and 503 with `Retry-After` while starting or draining, or while
-//! the work it would be sent is refused (the job queue is full), so a load balancer stops
-//! sending work before the server refuses it. [`Shutdown`] is the one
+//! and work is accepted, and 503 with `Retry-After` while starting or draining, so a load
+//! balancer stops sending work before the server stops taking it. [`Shutdown`] is the one
 //! token every long-lived task (the job engine, event streams, the accept loop) watches.
 
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -29,38 +28,20 @@ pub enum Phase {
     Draining,
 }
 
-/// Says why new work would be refused now (for example "the job queue is full"), if it
-/// would: set by whoever owns the queue, which this module does not know.
-pub type Refusal = dyn Fn() -> Option<String> + Send + Sync;
-
-/// The readiness flag behind `/readyz`, and what refuses work while ready.
-#[derive(Clone)]
-pub struct Ready {
-    phase: Arc<AtomicU8>,
-    refusal: Arc<std::sync::OnceLock<Box<Refusal>>>,
-}
-
-impl std::fmt::Debug for Ready {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Ready")
-            .field("phase", &self.phase())
-            .finish_non_exhaustive()
-    }
-}
+/// The readiness flag behind `/readyz`.
+#[derive(Debug, Clone)]
+pub struct Ready(Arc<AtomicU8>);
 
 impl Default for Ready {
     fn default() -> Self {
-        Ready {
-            phase: Arc::new(AtomicU8::new(Phase::Starting as u8)),
-            refusal: Arc::default(),
-        }
+        Ready(Arc::new(AtomicU8::new(Phase::Starting as u8)))
     }
 }
 
 impl Ready {
     /// The phase now.
     pub fn phase(&self) -> Phase {
-        match self.phase.load(Ordering::Acquire) {
+        match self.0.load(Ordering::Acquire) {
             0 => Phase::Starting,
             1 => Phase::Ready,
             _ => Phase::Draining,
@@ -70,7 +51,7 @@ impl Ready {
     /// Marks the service ready (store loaded, accepting work). Ignored once draining: a
     /// server that is shutting down never becomes ready again.
     pub fn set_ready(&self) {
-        let _ = self.phase.compare_exchange(
+        let _ = self.0.compare_exchange(
             Phase::Starting as u8,
             Phase::Ready as u8,
             Ordering::AcqRel,
@@ -80,18 +61,7 @@ impl Ready {
 
     /// Marks the service as shutting down.
     pub fn set_draining(&self) {
-        self.phase.store(Phase::Draining as u8, Ordering::Release);
-    }
-
-    /// Sets what `/readyz` asks, while ready, whether work would be refused (once; later
-    /// calls are ignored).
-    pub fn set_refusal(&self, refusal: Box<Refusal>) {
-        let _ = self.refusal.set(refusal);
-    }
-
-    /// Why work would be refused now, while ready.
-    pub fn refusal(&self) -> Option<String> {
-        self.refusal.get().and_then(|r| r())
+        self.0.store(Phase::Draining as u8, Ordering::Release);
     }
 
     /// Whether work is accepted now.
@@ -135,10 +105,7 @@ pub async fn healthz() -> Json<serde_json::Value> {
 /// `GET /readyz`.
 pub async fn readyz(State(ready): State<Ready>) -> Response {
     match ready.phase() {
-        Phase::Ready => match ready.refusal() {
-            None => Json(json!({ "status": "ready" })).into_response(),
-            Some(why) => ApiError::unavailable(why, 1).into_response(),
-        },
+        Phase::Ready => Json(json!({ "status": "ready" })).into_response(),
         Phase::Starting => ApiError::unavailable("the service is starting", 1).into_response(),
         Phase::Draining => ApiError::unavailable("the service is shutting down", 5).into_response(),
     }

@@ -88,6 +88,7 @@ impl From<AppError> for ApiError {
                 "job {id} has not succeeded (yet): its result is not ready"
             )),
             AppError::Internal(m) => ApiError::internal(m),
+            AppError::Busy(m) => ApiError::unavailable(m, 1),
         }
     }
 }

@@ -41,6 +41,10 @@ pub struct BackupReport {
     pub blobs: u64,
     /// Their bytes.
     pub bytes: u64,
+    /// Geometry versions left out of the copy: versions that `keep_versions` deleted in
+    /// the running server (with their blobs) after the snapshot was taken, so that the
+    /// copy holds what the server held a moment later instead of failing.
+    pub dropped_versions: u64,
 }
 
 impl Store {
@@ -136,14 +140,24 @@ impl Store {
     /// does, so no record can commit naming one of them meanwhile. A caller that stored
     /// the same bytes and has not yet committed its record finds the blob gone
     /// (`NotFound { what: "blob" }`) and stores it again: the bytes are never lost.
-    pub async fn collect_pruned(&self) -> Result<GcReport> {
-        let doomed =
-            std::mem::take(&mut *self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner()));
+    ///
+    /// With `wait` false it does nothing (and keeps the blobs for the next call) unless it
+    /// can take the gate at once: waiting for it would hold up every upload and record
+    /// behind a large blob being written.
+    pub async fn collect_pruned(&self, wait: bool) -> Result<GcReport> {
         let mut report = GcReport::default();
-        if doomed.is_empty() {
+        if self.pruned().is_empty() {
             return Ok(report);
         }
-        let _gate = self.inner.gc_gate.write().await;
+        let _gate = if wait {
+            self.inner.gc_gate.write().await
+        } else {
+            match self.inner.gc_gate.try_write() {
+                Ok(gate) => gate,
+                Err(_) => return Ok(report),
+            }
+        };
+        let doomed = std::mem::take(&mut *self.pruned());
         let mut unreferenced = Vec::new();
         for id in doomed {
             let named: bool = sqlx::query_scalar(
@@ -201,7 +215,8 @@ impl Store {
     /// the process that does, through a read-only connection (SQLite lets another process
     /// read a WAL database). In that case that process's GC is not held off: if it
     /// collects a blob the snapshot names during the copy (the blob became unreferenced
-    /// after the snapshot and is older than its grace period), the backup fails with
+    /// after the snapshot and is older than its grace period, or is a result's or an
+    /// upload's), the backup fails with
     /// `NotFound` and can simply be run again.
     pub async fn backup_dir(dir: impl AsRef<Path>, dest: impl AsRef<Path>) -> Result<BackupReport> {
         let dir = dir.as_ref();
@@ -291,7 +306,7 @@ async fn backup_into(
         .collect::<Result<_, _>>()?;
     snapshot.close().await?;
     let root = blobs_root.to_path_buf();
-    blocking(dir, move || {
+    let (mut report, missing) = blocking(dir, move || {
         // Only reads and copies: no `BlobDir::prepare`, which would remove the temporary
         // files of a live writer in another process.
         let source = BlobDir {
@@ -299,15 +314,65 @@ async fn backup_into(
             quota: super::blob::Quota::new(None, 0),
         };
         let mut report = BackupReport::default();
+        let mut missing = Vec::new();
         for id in ids {
             let id = BlobId::parse(&id).ok_or_else(|| StoreError::Corrupt {
                 blob: id.clone(),
                 detail: "a record names a blob id that is not 64 hex digits".into(),
             })?;
-            report.bytes += source.copy_verified_to(&id, &blobs_dest)?;
-            report.blobs += 1;
+            match source.copy_verified_to(&id, &blobs_dest) {
+                Ok(bytes) => {
+                    report.bytes += bytes;
+                    report.blobs += 1;
+                }
+                Err(StoreError::NotFound { .. }) => missing.push(id),
+                Err(e) => return Err(e),
+            }
         }
-        Ok(report)
+        Ok((report, missing))
     })
-    .await
+    .await?;
+    if !missing.is_empty() {
+        report.dropped_versions = drop_pruned_versions(&db, &missing).await?;
+        blocking(dir, move || {
+            std::fs::File::open(&db)
+                .and_then(|f| f.sync_all())
+                .map_err(|e| StoreError::io(&db, e))
+        })
+        .await?;
+    }
+    Ok(report)
+}
+
+/// In a backup's copied database, deletes the versions whose blobs were gone when the
+/// copy came to them (`missing`): allowed only when every record naming such a blob is a
+/// version from 2 on that no job names, which is what `keep_versions` deletes in a
+/// running server; anything else missing is `NotFound`, as before. Returns how many
+/// versions went.
+async fn drop_pruned_versions(db: &Path, missing: &[BlobId]) -> Result<u64> {
+    let mut conn =
+        SqliteConnection::connect_with(&SqliteConnectOptions::new().filename(db)).await?;
+    let mut dropped = 0;
+    for id in missing {
+        let other: bool = sqlx::query_scalar(
+            "SELECT EXISTS (SELECT 1 FROM scene_versions WHERE blob = ?1 AND (version = 1 \
+             OR EXISTS (SELECT 1 FROM jobs WHERE jobs.scene_id = scene_versions.scene_id \
+             AND jobs.version = scene_versions.version))) \
+             OR EXISTS (SELECT 1 FROM jobs WHERE result_blob = ?1 OR input_blob = ?1) \
+             OR EXISTS (SELECT 1 FROM job_results WHERE blob = ?1)",
+        )
+        .bind(id.as_str())
+        .fetch_one(&mut conn)
+        .await?;
+        if other {
+            return Err(StoreError::not_found("blob", id.as_str()));
+        }
+        dropped += sqlx::query("DELETE FROM scene_versions WHERE blob = ?")
+            .bind(id.as_str())
+            .execute(&mut conn)
+            .await?
+            .rows_affected();
+    }
+    conn.close().await?;
+    Ok(dropped)
 }

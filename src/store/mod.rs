@@ -66,7 +66,7 @@ pub struct StoreOptions {
     pub busy_timeout: Duration,
     /// How many of a scene's newest versions (the latest included) are kept besides
     /// version 1 and the versions a job names; older ones are deleted as newer ones
-    /// arrive, and their blobs go at the next [`Store::gc`]. A client that sends new
+    /// arrive, and their blobs go at the next [`Store::collect_pruned`]. A client that sends new
     /// positions every frame would otherwise fill the disk. `None` keeps every version.
     pub keep_versions: Option<u32>,
 }
@@ -225,7 +225,9 @@ impl Store {
 
     /// Stores bytes as a blob and returns its id. Storing the same bytes twice keeps one
     /// file. The blob is durable when this returns; name it in a record within
-    /// `gc_grace`, or GC may collect it.
+    /// `gc_grace`, or GC may collect it. Bytes that are also a version's being deleted by
+    /// `keep_versions` may be collected sooner ([`Store::collect_pruned`]): recording them
+    /// then fails with `NotFound { what: "blob" }`, and storing them again mends it.
     pub async fn put_blob(&self, bytes: impl AsRef<[u8]> + Send + 'static) -> Result<BlobId> {
         let _gate = self.inner.gc_gate.read().await;
         let blobs = Arc::clone(&self.inner.blobs);

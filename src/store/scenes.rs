@@ -31,6 +31,9 @@ pub struct NewScene {
 /// enough that a client cannot fill the database through them.
 pub(crate) const MAX_LABEL: usize = 1024;
 
+/// Most blobs of deleted versions kept for [`Store::collect_pruned`].
+const MAX_DOOMED: usize = 1 << 16;
+
 /// The condition, on a `scene_versions` row, that no job names it: a job's record keeps
 /// its version (and, by the foreign key's cascade, would go with it).
 macro_rules! unused_version {
@@ -239,7 +242,8 @@ impl Store {
 
     /// Deletes, in every scene, the versions that [`Store::add_version`] would have pruned
     /// but a job still named then (the job has since expired or been deleted). Returns the
-    /// `(scene, version)` pairs deleted; their blobs go at the next [`Store::gc`]. Does
+    /// `(scene, version)` pairs deleted; their blobs go at the next
+    /// [`Store::collect_pruned`]. Does
     /// nothing when every version is kept.
     pub async fn prune_versions(&self) -> Result<Vec<(String, i64)>> {
         let Some(keep) = self.inner.options.keep_versions else {
@@ -271,10 +275,20 @@ impl Store {
         if pruned.is_empty() {
             return;
         }
-        let mut doomed = self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner());
+        let mut doomed = self.pruned();
         doomed.extend(pruned.iter().filter_map(|v| BlobId::parse(&v.blob)));
+        // Uncollected (no caller runs `collect_pruned`), the oldest are left to GC's grace.
+        if doomed.len() > MAX_DOOMED {
+            let over = doomed.len() - MAX_DOOMED;
+            doomed.drain(..over);
+        }
         drop(doomed);
         self.inner.pruned_ready.notify_one();
+    }
+
+    /// The blobs of deleted versions awaiting [`Store::collect_pruned`].
+    pub(super) fn pruned(&self) -> std::sync::MutexGuard<'_, Vec<BlobId>> {
+        self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner())
     }
 
     /// One version of a scene.
