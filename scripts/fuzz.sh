@@ -11,7 +11,7 @@
 # code of src/simd and the dependencies could have).
 # No nightly toolchain is needed: RUSTC_BOOTSTRAP=1 lets the stable one take -Z flags.
 # Seeds come from fuzz/seeds/TARGET (committed); what a run learns goes to fuzz/corpus/TARGET,
-# crashes to fuzz/artifacts/TARGET (neither is committed).
+# crashes to fuzz/artifacts/TARGET, a failed run's whole log to fuzz/logs (none is committed).
 set -euo pipefail
 cd "$(dirname "$0")/../fuzz"
 
@@ -57,7 +57,9 @@ for t in "${targets[@]}"; do
     "${ft:-?}" "${corp:-?}" "$crashes"
   if [ "$rc" -ne 0 ] || [ "$crashes" -ne 0 ]; then
     failed=1
-    echo "fuzz: $t exited $rc; its log:" >&2
+    mkdir -p logs
+    cp "$log" "logs/$t-$start.txt"
+    echo "fuzz: $t exited $rc; its log (whole in fuzz/logs/$t-$start.txt):" >&2
     tail -n 40 "$log" >&2
   fi
   rm -f "$log"

@@ -403,6 +403,13 @@ fn the_service_end_to_end() {
     let misses = "rayd_texture_cache_misses_total";
     assert_eq!(after.get(hits), before.get(hits) + 1.0);
     assert_eq!(after.get(misses), before.get(misses));
+    // And its light table (the same positions, sky and sampling).
+    let (lh, lm) = (
+        "rayd_light_cache_hits_total",
+        "rayd_light_cache_misses_total",
+    );
+    assert_eq!(after.get(lh), before.get(lh) + 1.0);
+    assert_eq!(after.get(lm), before.get(lm));
     // A render's rays count among the rays traced.
     let traced = "rayd_rays_traced_total";
     assert!(render_rays > 0.0 && after.get(traced) == before.get(traced) + render_rays);

@@ -394,6 +394,7 @@ impl App {
         self.inner.scenes.forget(id);
         self.engine().cache().forget_scene(id);
         self.engine().textures().forget_scene(id);
+        self.engine().lights().forget_scene(id);
         self.inner.thumbnails.forget(id);
         Ok(())
     }

@@ -219,6 +219,7 @@ fn sampler(engine: Arc<crate::jobs::Engine>) -> service::metrics::Sampler {
         m.set_jobs_running(sched.running());
         m.set_structure_cache(&engine.cache().stats());
         m.set_texture_cache(&engine.textures().stats());
+        m.set_light_cache(&engine.lights().stats());
         m.set_upload_rate(engine.upload_rate());
     })
 }

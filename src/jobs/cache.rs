@@ -20,6 +20,7 @@ use std::sync::{Arc, Mutex};
 use super::lru::Lru;
 use super::GeometryKey;
 use crate::accel::{AccelKind, BuildQuality, Intersector, Precision};
+use crate::render::lights::LightSampler;
 use crate::render::texture::TextureSet;
 
 /// What a cached structure is.
@@ -190,6 +191,56 @@ impl TextureCache {
     /// Drops scene `scene`'s textures (the scene was deleted).
     pub fn forget_scene(&self, scene: &str) {
         self.0.lock().remove_where(|k| &**k == scene);
+    }
+
+    /// Counters and sizes.
+    pub fn stats(&self) -> CacheStats {
+        self.0.stats()
+    }
+}
+
+/// What a kept light table was built for: the positions, the sky and whether emitters and
+/// sky are sampled (`light_sampling`). The surfaces are the scene's (its id is in the
+/// geometry key), the same for every job of the scene.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct LightKey {
+    /// The positions.
+    pub geometry: GeometryKey,
+    /// The sky's radiance, as bits.
+    pub sky: [u32; 3],
+    /// Whether emissive triangles and the sky are in the table.
+    pub area: bool,
+}
+
+/// Path-traced frames' light tables ([`LightSampler`]), kept between render jobs of the
+/// same positions: weighing a textured scene's emitters reads their emissive texels, as
+/// many instructions as a small frame's shading (BENCHMARKS.md "Still to measure").
+pub struct LightCache(Counted<LightKey, Arc<LightSampler>>);
+
+impl LightCache {
+    /// A cache that holds at most `budget` bytes of tables.
+    pub fn new(budget: usize) -> LightCache {
+        LightCache(Counted::new(budget))
+    }
+
+    /// The table for `key`: a held one (a hit) or `build`'s (a miss), kept when it fits.
+    pub fn get_or_build<E>(
+        &self,
+        key: LightKey,
+        build: impl FnOnce() -> Result<LightSampler, E>,
+    ) -> Result<Arc<LightSampler>, E> {
+        if let Some(t) = self.0.get(&key) {
+            return Ok(t);
+        }
+        let t = Arc::new(build()?);
+        let bytes = t.bytes();
+        self.0.lock().insert(key, Arc::clone(&t), bytes);
+        Ok(t)
+    }
+
+    /// Drops scene `scene`'s tables (the scene was deleted).
+    pub fn forget_scene(&self, scene: &str) {
+        self.0.lock().remove_where(|k| &*k.geometry.scene == scene);
     }
 
     /// Counters and sizes.

@@ -4,7 +4,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::cache::{StructureCache, StructureKey, TextureCache};
+use super::cache::{LightCache, StructureCache, StructureKey, TextureCache};
 use super::sched::Scheduler;
 use super::{seconds_since, CancelToken, Control, Geometry, JobError, Limits};
 use crate::accel::auto::{self, Geometry as Known};
@@ -82,11 +82,16 @@ pub struct Prepared {
     pub source: Source,
 }
 
+/// Bytes of light tables kept between render jobs: 16 bytes an emissive triangle, so
+/// about four million emitters' worth.
+const LIGHT_TABLE_BYTES: usize = 64 << 20;
+
 /// The engine (see the module docs of [`crate::jobs`]).
 pub struct Engine {
     pool: Arc<rayon::ThreadPool>,
     cache: StructureCache,
     textures: TextureCache,
+    lights: LightCache,
     sched: Arc<Scheduler>,
     options: EngineOptions,
     /// Seconds per byte that large request bodies have taken to arrive (the bits of an f64
@@ -119,6 +124,7 @@ impl Engine {
             pool: Arc::new(pool),
             cache: StructureCache::new(options.cache_bytes),
             textures: TextureCache::new(options.texture_bytes),
+            lights: LightCache::new(LIGHT_TABLE_BYTES),
             sched: Scheduler::new(options.max_queued),
             options,
             upload_cost: AtomicU64::new((1.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).to_bits()),
@@ -169,6 +175,11 @@ impl Engine {
     /// The cache of scenes' decoded textures, which render jobs of the service share.
     pub fn textures(&self) -> &TextureCache {
         &self.textures
+    }
+
+    /// The cache of path-traced frames' light tables.
+    pub fn lights(&self) -> &LightCache {
+        &self.lights
     }
 
     /// The scheduler.

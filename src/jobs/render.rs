@@ -4,6 +4,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::cache::LightKey;
 use super::engine::Source;
 use super::{seconds_since, Control, Engine, Geometry, JobError, Limits};
 use crate::accel::{AccelKind, BuildQuality, Precision};
@@ -362,13 +363,28 @@ impl Engine {
                 frames: times.len(),
             };
             let t1 = Instant::now();
-            let (image, stats) = crate::render::render(
+            // A path frame's light table, kept for later jobs of the same positions.
+            let lights = match (&input.surfaces, request.integrator) {
+                (Some(surfaces), Integrator::Path) => {
+                    let key = LightKey {
+                        geometry: g.key.clone(),
+                        sky: options.sky.map(f32::to_bits),
+                        area: options.light_sampling,
+                    };
+                    Some(self.lights().get_or_build(key, || {
+                        crate::render::light_table(&g.triangles, surfaces, &options, &waves)
+                    })?)
+                }
+                _ => None,
+            };
+            let (image, stats) = crate::render::render_lit(
                 &g.triangles,
                 prepared.accel.as_ref(),
                 &camera,
                 &options,
                 bounds.as_ref(),
                 input.surfaces.as_deref(),
+                lights.as_deref(),
                 &waves,
             )?;
             let render_seconds = seconds_since(t1);

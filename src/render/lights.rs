@@ -148,6 +148,13 @@ impl LightSampler {
         }
     }
 
+    /// Bytes held: the table and its cumulative probabilities.
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + std::mem::size_of_val(&self.emitters[..])
+            + std::mem::size_of_val(&self.cdf[..])
+    }
+
     /// Whether there is anything to sample.
     pub fn is_empty(&self) -> bool {
         self.p_punctual + self.p_triangles + self.p_sky == 0.0

@@ -308,6 +308,26 @@ const MIN_WAVE_PATHS: usize = 1 << 10;
 /// pixel's sum adds the same terms in the same order however waves are sized.
 const SAMPLES_AT_ONCE: u32 = 4;
 
+/// The light table of a `path` frame ([`LightSampler::new`]), built on the pool as a
+/// step of its own: weighing textured emitters reads their textures.
+pub fn light_table<W: Waves + ?Sized>(
+    triangles: &[Triangle],
+    surfaces: &Surfaces,
+    options: &RenderOptions,
+    waves: &W,
+) -> Result<LightSampler, W::Error> {
+    let mut built = None;
+    waves.run_wave(&mut || {
+        built = Some(LightSampler::new(
+            triangles,
+            surfaces,
+            Vec3::from(options.sky),
+            options.light_sampling,
+        ))
+    })?;
+    Ok(built.expect("run_wave runs its step or returns the error"))
+}
+
 /// Renders `triangles` (the ones `accel` was built over) through `camera`, in waves driven
 /// by `waves`. `bounds`, a box around `triangles` (`None`: not known), tells which pixels'
 /// camera rays can hit anything; only those are traced. `surfaces` holds the
@@ -322,6 +342,25 @@ pub fn render<W: Waves + ?Sized>(
     surfaces: Option<&Surfaces>,
     waves: &W,
 ) -> Result<(Image, RenderStats), W::Error> {
+    render_lit(
+        triangles, accel, camera, options, bounds, surfaces, None, waves,
+    )
+}
+
+/// [`render`] with the frame's light table given, when the caller kept the one an earlier
+/// frame of the same positions, surfaces, `sky` and `light_sampling` built
+/// ([`LightSampler::new`]); `None` builds it (for `path`).
+#[allow(clippy::too_many_arguments)]
+pub fn render_lit<W: Waves + ?Sized>(
+    triangles: &[Triangle],
+    accel: &dyn Intersector,
+    camera: &ViewCamera,
+    options: &RenderOptions,
+    bounds: Option<&Aabb>,
+    surfaces: Option<&Surfaces>,
+    lights: Option<&LightSampler>,
+    waves: &W,
+) -> Result<(Image, RenderStats), W::Error> {
     let fallback;
     let surfaces = match surfaces {
         Some(s) => s,
@@ -330,21 +369,15 @@ pub fn render<W: Waves + ?Sized>(
             &fallback
         }
     };
-    let lights = if options.integrator == Integrator::Path {
-        // On the pool, as a step of its own: weighing textured emitters reads their
-        // textures (LightSampler::new).
-        let mut built = None;
-        waves.run_wave(&mut || {
-            built = Some(LightSampler::new(
-                triangles,
-                surfaces,
-                Vec3::from(options.sky),
-                options.light_sampling,
-            ))
-        })?;
-        built.expect("run_wave runs its step or returns the error")
+    let own;
+    let lights = if options.integrator != Integrator::Path {
+        own = LightSampler::default();
+        &own
+    } else if let Some(given) = lights {
+        given
     } else {
-        LightSampler::default()
+        own = light_table(triangles, surfaces, options, waves)?;
+        &own
     };
     let (w, h) = (options.width, options.height);
     let n = w as usize * h as usize;
@@ -413,7 +446,7 @@ pub fn render<W: Waves + ?Sized>(
                         scene_diagonal,
                         visible,
                         surfaces,
-                        lights: &lights,
+                        lights,
                     },
                     (start, end, samples.clone()),
                     &mut out,

@@ -45,6 +45,8 @@ pub struct Metrics {
     texture_hits: IntCounter,
     texture_misses: IntCounter,
     texture_bytes: IntGauge,
+    light_hits: IntCounter,
+    light_misses: IntCounter,
     upload_rate: Gauge,
     body_bytes: IntGauge,
     body_refused: IntCounterVec,
@@ -212,6 +214,20 @@ impl Metrics {
                     "Bytes of decoded textures held in the texture cache.",
                 )?,
             )?,
+            light_hits: reg(
+                r,
+                IntCounter::new(
+                    "light_cache_hits_total",
+                    "Path-traced frames that found their light table in the cache.",
+                )?,
+            )?,
+            light_misses: reg(
+                r,
+                IntCounter::new(
+                    "light_cache_misses_total",
+                    "Path-traced frames that built their light table.",
+                )?,
+            )?,
             upload_rate: reg(
                 r,
                 Gauge::new(
@@ -291,6 +307,12 @@ impl Metrics {
         catch_up(&self.texture_misses, c.misses);
         self.texture_bytes
             .set(c.bytes.min(i64::MAX as usize) as i64);
+    }
+
+    /// Sets the light-table cache's counters.
+    pub fn set_light_cache(&self, c: &CacheStats) {
+        catch_up(&self.light_hits, c.hits);
+        catch_up(&self.light_misses, c.misses);
     }
 
     /// Sets the rate at which `auto` expects trace bodies to arrive.
