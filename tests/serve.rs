@@ -854,14 +854,10 @@ fn old_geometry_versions_are_deleted_unless_a_job_names_them() {
         assert_eq!((status(v), geometry(v)), (200, 200), "version {v}");
     }
     // A render job on version 3 keeps it past versions 5 and 6.
-    let r = s.req(
-        "POST",
-        &format!("/v1/scenes/{id}/render"),
-        &[("Content-Type", "application/json")],
+    let job = s.submit_render(
+        &id,
         br#"{"width": 8, "height": 8, "integrator": "primary", "version": 3}"#,
     );
-    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
-    let job = r.json()["id"].as_str().unwrap().to_string();
     assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
     assert_eq!((put(4.0), put(5.0)), (5, 6));
     assert_eq!(status(3), 200, "version 3 is named by a job");

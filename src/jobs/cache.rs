@@ -89,6 +89,25 @@ impl<K: Eq + std::hash::Hash + Clone, V: Clone> Counted<K, V> {
         self.lru.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// The entry for `key`: a held one (a hit), or `make`'s (a miss), kept when its
+    /// `bytes` fit the budget. Made outside the lock, so that other keys' lookups go on
+    /// meanwhile; concurrent misses of one key both make it, and the second to finish
+    /// replaces the first's entry with an equal one.
+    fn get_or_make<E>(
+        &self,
+        key: K,
+        make: impl FnOnce() -> Result<V, E>,
+        bytes: impl FnOnce(&V) -> usize,
+    ) -> Result<V, E> {
+        if let Some(v) = self.get(&key) {
+            return Ok(v);
+        }
+        let v = make()?;
+        let size = bytes(&v);
+        self.lock().insert(key, v.clone(), size);
+        Ok(v)
+    }
+
     /// The entry for `key`, if held; counts a hit or a miss.
     fn get(&self, key: &K) -> Option<V> {
         let found = self.lock().get(key).cloned();
@@ -177,15 +196,8 @@ impl TextureCache {
         scene: &str,
         decode: impl FnOnce() -> Result<TextureSet, E>,
     ) -> Result<Arc<TextureSet>, E> {
-        let key: Arc<str> = Arc::from(scene);
-        if let Some(t) = self.0.get(&key) {
-            return Ok(t);
-        }
-        // Decoded outside the lock: other scenes' jobs find theirs meanwhile.
-        let t = Arc::new(decode()?);
-        let bytes = t.bytes();
-        self.0.lock().insert(key, Arc::clone(&t), bytes);
-        Ok(t)
+        self.0
+            .get_or_make(Arc::from(scene), || decode().map(Arc::new), |t| t.bytes())
     }
 
     /// Drops scene `scene`'s textures (the scene was deleted).
@@ -229,13 +241,8 @@ impl LightCache {
         key: LightKey,
         build: impl FnOnce() -> Result<LightSampler, E>,
     ) -> Result<Arc<LightSampler>, E> {
-        if let Some(t) = self.0.get(&key) {
-            return Ok(t);
-        }
-        let t = Arc::new(build()?);
-        let bytes = t.bytes();
-        self.0.lock().insert(key, Arc::clone(&t), bytes);
-        Ok(t)
+        self.0
+            .get_or_make(key, || build().map(Arc::new), |t| t.bytes())
     }
 
     /// Drops scene `scene`'s tables (the scene was deleted).

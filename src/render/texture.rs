@@ -49,17 +49,13 @@ pub struct Texels {
 
 /// How the texels are held. Images of 8 bits a channel (nearly every glTF texture) keep
 /// them as 4 bytes: a quarter of the memory and cache lines of f32 texels, and their sRGB
-/// decode is a table lookup ([`SRGB_TO_LINEAR`]) instead of a `powf` per channel of every
+/// decode is a table lookup ([`Decode8`]) instead of a `powf` per channel of every
 /// one of the four texels a bilinear lookup reads. Deeper images keep f32.
 #[derive(Clone, Debug, PartialEq)]
 enum Store {
     Rgba8(Vec<[u8; 4]>),
     RgbaF32(Vec<[f32; 4]>),
 }
-
-/// `to_linear(i / 255)` for every 8-bit code `i`: the same values a lookup would compute.
-static SRGB_TO_LINEAR: std::sync::LazyLock<[f32; 256]> =
-    std::sync::LazyLock::new(|| std::array::from_fn(|i| to_linear(unit8(i as u8))));
 
 /// The linear values halfway between consecutive 8-bit sRGB codes: the code nearest (in
 /// sRGB) to a linear value is the number of bounds at or below it.
@@ -348,7 +344,7 @@ pub(crate) fn filter_level<T: Blend>(
 /// their mean, of the light for colour channels (`srgb`), of the codes for data and alpha.
 #[inline(always)]
 fn average8(block: impl IntoIterator<Item = [u8; 4]>, n: u32, srgb: bool) -> [u8; 4] {
-    let lut = &*SRGB_TO_LINEAR;
+    let lut = &decode_tables().srgb;
     let (mut light, mut code) = ([0f32; 3], [0u32; 4]);
     for p in block {
         for c in 0..4 {
@@ -390,13 +386,15 @@ pub(crate) fn decode8(p: [u8; 4], srgb: bool) -> Vec4 {
 /// callers in a loop take the tables once ([`decode_tables`]) rather than through the
 /// lazy static each time.
 pub(crate) struct Decode8 {
+    /// `c / 255`.
     linear: [f32; 256],
+    /// `to_linear(c / 255)`: the same values a lookup would compute.
     srgb: [f32; 256],
 }
 
 static DECODE8: std::sync::LazyLock<Decode8> = std::sync::LazyLock::new(|| Decode8 {
     linear: std::array::from_fn(|i| unit8(i as u8)),
-    srgb: *SRGB_TO_LINEAR,
+    srgb: std::array::from_fn(|i| to_linear(unit8(i as u8))),
 });
 
 /// The decode tables, initialised.
@@ -904,7 +902,7 @@ mod tests {
     #[test]
     fn srgb_codes_survive_the_round_trip_through_light() {
         for c in 0..=255u8 {
-            let v = SRGB_TO_LINEAR[c as usize];
+            let v = decode_tables().srgb[c as usize];
             assert_eq!(SRGB_CODE_BOUNDS.partition_point(|&b| b <= v), c as usize);
             assert_eq!(srgb_code(v), c);
             for d in [-1e-7f32, 1e-7] {

@@ -101,7 +101,7 @@ impl Store {
                 referenced: referenced.len() as u64,
                 ..GcReport::default()
             };
-            let mut touched = HashSet::new();
+            let mut doomed = Vec::new();
             for (id, modified) in blobs.list()? {
                 if referenced.contains(id.as_str()) {
                     continue;
@@ -112,17 +112,9 @@ impl Store {
                     report.kept_recent += 1;
                     continue;
                 }
-                let path = blobs.path(&id);
-                let freed = blobs.delete(&id)?;
-                if freed > 0 {
-                    report.deleted += 1;
-                    report.freed_bytes += freed;
-                    touched.insert(path.parent().map(Path::to_path_buf));
-                }
+                doomed.push(id);
             }
-            for dir in touched.into_iter().flatten() {
-                sync_dir(&dir)?;
-            }
+            delete_blob_files(&blobs, doomed, &mut report)?;
             Ok(report)
         })
         .await
@@ -176,19 +168,7 @@ impl Store {
         }
         let blobs = Arc::clone(&self.inner.blobs);
         blocking(&self.inner.dir, move || {
-            let mut touched = HashSet::new();
-            for id in unreferenced {
-                let path = blobs.path(&id);
-                let freed = blobs.delete(&id)?;
-                if freed > 0 {
-                    report.deleted += 1;
-                    report.freed_bytes += freed;
-                    touched.insert(path.parent().map(Path::to_path_buf));
-                }
-            }
-            for dir in touched.into_iter().flatten() {
-                sync_dir(&dir)?;
-            }
+            delete_blob_files(&blobs, unreferenced, &mut report)?;
             Ok(report)
         })
         .await
@@ -342,6 +322,26 @@ async fn backup_into(
         .await?;
     }
     Ok(report)
+}
+
+/// Deletes the files of `ids` (the caller holds the GC gate exclusively and has checked
+/// that no record names them), counts them in `report`, then makes each touched shard
+/// directory durable once.
+fn delete_blob_files(blobs: &BlobDir, ids: Vec<BlobId>, report: &mut GcReport) -> Result<()> {
+    let mut touched = HashSet::new();
+    for id in ids {
+        let path = blobs.path(&id);
+        let freed = blobs.delete(&id)?;
+        if freed > 0 {
+            report.deleted += 1;
+            report.freed_bytes += freed;
+            touched.insert(path.parent().map(Path::to_path_buf));
+        }
+    }
+    for dir in touched.into_iter().flatten() {
+        sync_dir(&dir)?;
+    }
+    Ok(())
 }
 
 /// In a backup's copied database, deletes the versions whose blobs were gone when the

@@ -17,6 +17,16 @@ async fn open(dir: &Path) -> Store {
     Store::open(dir, opts()).await.expect("open")
 }
 
+/// A store in `dir` that keeps `keep` versions of a scene, with the default GC grace (the
+/// blobs of deleted versions go at `collect_pruned` all the same).
+async fn open_keeping(dir: &Path, keep: u32) -> Store {
+    let options = StoreOptions {
+        keep_versions: Some(keep),
+        ..StoreOptions::default()
+    };
+    Store::open(dir, options).await.expect("open")
+}
+
 /// Stores `bytes` and records a scene for them.
 async fn scene(store: &Store, bytes: &[u8]) -> SceneRecord {
     let blob = store.put_blob(bytes.to_vec()).await.unwrap();
@@ -471,16 +481,7 @@ async fn concurrent_versions_get_consecutive_numbers() {
 #[tokio::test]
 async fn old_versions_go_unless_a_job_names_them() {
     let tmp = tempfile::tempdir().unwrap();
-    // The default grace: the blobs of deleted versions go at once all the same.
-    let store = Store::open(
-        tmp.path(),
-        StoreOptions {
-            keep_versions: Some(2),
-            ..StoreOptions::default()
-        },
-    )
-    .await
-    .unwrap();
+    let store = open_keeping(tmp.path(), 2).await;
     let s = scene(&store, b"moving").await;
     let numbers = |vs: Vec<VersionRecord>| vs.iter().map(|v| v.version).collect::<Vec<_>>();
     let mut blobs = Vec::new();
@@ -569,15 +570,7 @@ async fn old_versions_go_unless_a_job_names_them() {
 #[tokio::test]
 async fn a_pruned_blob_stored_again_before_its_record_must_be_stored_once_more() {
     let tmp = tempfile::tempdir().unwrap();
-    let store = Store::open(
-        tmp.path(),
-        StoreOptions {
-            keep_versions: Some(1),
-            ..StoreOptions::default()
-        },
-    )
-    .await
-    .unwrap();
+    let store = open_keeping(tmp.path(), 1).await;
     let s = scene(&store, b"frames").await;
     let first = store.put_blob(vec![1u8; 36]).await.unwrap();
     store.add_version(&s.id, &first).await.unwrap();

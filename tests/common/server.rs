@@ -82,6 +82,18 @@ impl Server {
         r.json()
     }
 
+    /// POSTs render options `body` for scene `scene`: the new job's id (202 asserted).
+    pub fn submit_render(&self, scene: &str, body: &[u8]) -> String {
+        let r = self.req(
+            "POST",
+            &format!("/v1/scenes/{scene}/render"),
+            &[("Content-Type", "application/json")],
+            body,
+        );
+        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+        r.json()["id"].as_str().unwrap().to_string()
+    }
+
     pub fn kill9(mut self) {
         self.child.kill().unwrap();
         self.child.wait().unwrap();
