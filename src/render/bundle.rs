@@ -12,7 +12,7 @@
 use glam::{Vec2, Vec4};
 
 use super::mipmap::{across_levels, Filtering, Pyramid};
-use super::texture::{decode_tables, filter_level, SLOTS, SLOT_IS_COLOUR};
+use super::texture::{decode_tables, filter_level, Bilinear, Blend, SLOTS, SLOT_IS_COLOUR};
 use crate::scene::Filter;
 
 /// Fewest textures a bundle takes: its records hold four, so with three at most a quarter
@@ -128,27 +128,53 @@ impl Bundle {
     }
 
     /// Level `k` at `uv` with `filter`, each slot in `mask` as
-    /// [`super::texture::Texels::sample`] computes it.
+    /// [`super::texture::Texels::sample`] computes it. Bilinear lookups (nearly all) read
+    /// the four records once and then filter slot by slot: four slots' taps at once are
+    /// sixteen vectors, more than the registers, and the generic filter over `[Vec4; 4]`
+    /// spilled them (a third of a shading point's instructions went to this lookup).
     #[inline]
     fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
         let l = &self.levels[k];
         let tables = decode_tables();
-        filter_level(
-            uv,
-            (l.width, l.height),
-            self.filtering.wrap,
-            filter,
-            |x, y| {
-                let p = l.texels[y as usize * l.width as usize + x as usize];
-                std::array::from_fn(|s| {
-                    if mask[s] {
-                        tables.decode(p[s], SLOT_IS_COLOUR[s])
-                    } else {
-                        Vec4::ZERO
-                    }
-                })
-            },
-        )
+        let decode = |p: &[[u8; 4]; SLOTS]| {
+            std::array::from_fn(|s| {
+                if mask[s] {
+                    tables.decode(p[s], SLOT_IS_COLOUR[s])
+                } else {
+                    Vec4::ZERO
+                }
+            })
+        };
+        let (w, h) = (i64::from(l.width), i64::from(l.height));
+        let x = uv.x * w as f32 - 0.5;
+        let y = uv.y * h as f32 - 0.5;
+        if filter == Filter::Nearest || !(x.is_finite() && y.is_finite()) {
+            return filter_level(
+                uv,
+                (l.width, l.height),
+                self.filtering.wrap,
+                filter,
+                |x, y| decode(&l.texels[y as usize * l.width as usize + x as usize]),
+            );
+        }
+        let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
+        let (row0, row1) = (b.y[0] as usize * w as usize, b.y[1] as usize * w as usize);
+        let (x0, x1) = (b.x[0] as usize, b.x[1] as usize);
+        let taps = [
+            &l.texels[row0 + x0],
+            &l.texels[row0 + x1],
+            &l.texels[row1 + x0],
+            &l.texels[row1 + x1],
+        ];
+        std::array::from_fn(|s| {
+            if !mask[s] {
+                return Vec4::ZERO;
+            }
+            let d = |p: &[[u8; 4]; SLOTS]| tables.decode(p[s], SLOT_IS_COLOUR[s]);
+            let top = d(taps[0]).blend(d(taps[1]), b.fx);
+            let bottom = d(taps[2]).blend(d(taps[3]), b.fx);
+            top.blend(bottom, b.fy)
+        })
     }
 }
 

@@ -327,16 +327,58 @@ pub(crate) fn filter_level<T: Blend>(
             texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]))
         }
         Filter::Linear => {
-            let (x0, y0) = (x.floor(), y.floor());
-            let (fx, fy) = (x - x0, y - y0);
-            let (i, j) = (x0 as i64, y0 as i64);
-            // Each axis wrapped once for both of its taps.
-            let (i0, i1) = (wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0]));
-            let (j0, j1) = (wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1]));
-            let top = texel(i0, j0).blend(texel(i1, j0), fx);
-            let bottom = texel(i0, j1).blend(texel(i1, j1), fx);
-            top.blend(bottom, fy)
+            let b = Bilinear::at(x, y, (w, h), wrap);
+            let [i0, i1] = b.x;
+            let [j0, j1] = b.y;
+            let top = texel(i0, j0).blend(texel(i1, j0), b.fx);
+            let bottom = texel(i0, j1).blend(texel(i1, j1), b.fx);
+            top.blend(bottom, b.fy)
         }
+    }
+}
+
+/// The four taps of a bilinear lookup: two columns, two rows (each wrapped), and the
+/// weights of the second of each. One computation for [`filter_level`] and the bundle's
+/// own lookups ([`super::bundle::Bundle`]), which must give the same bits.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Bilinear {
+    pub x: [i64; 2],
+    pub y: [i64; 2],
+    pub fx: f32,
+    pub fy: f32,
+}
+
+impl Bilinear {
+    /// The taps around `(x, y)` in texel units (texel centres at `k + 0.5`, already
+    /// shifted by a half: the finite `uv · size − 0.5`) of a level of `size` texels.
+    #[inline(always)]
+    pub(crate) fn at(x: f32, y: f32, (w, h): (i64, i64), wrap: [Wrap; 2]) -> Bilinear {
+        let (x0, y0) = (floor(x), floor(y));
+        let (i, j) = (x0 as i64, y0 as i64);
+        // Each axis wrapped once for both of its taps.
+        Bilinear {
+            x: [wrap_index(i, w, wrap[0]), wrap_index(i + 1, w, wrap[0])],
+            y: [wrap_index(j, h, wrap[1]), wrap_index(j + 1, h, wrap[1])],
+            fx: x - x0,
+            fy: y - y0,
+        }
+    }
+}
+
+/// `x.floor()` for finite `x`, without the libm call that `floor` compiles to on x86-64's
+/// baseline (SSE2 has no rounding instruction): every bilinear lookup takes two.
+#[inline(always)]
+pub(crate) fn floor(x: f32) -> f32 {
+    // At 2^23 and beyond every f32 is an integer.
+    if x.abs() < 8_388_608.0 {
+        let t = x as i32 as f32;
+        if t > x {
+            t - 1.0
+        } else {
+            t
+        }
+    } else {
+        x
     }
 }
 
@@ -952,6 +994,46 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn floor_is_f32_floor_for_every_finite_value() {
+        let mut values = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            0.999_999_94,
+            -0.999_999_94,
+            8_388_607.5,
+            -8_388_607.5,
+            8_388_608.0,
+            -8_388_608.0,
+            1e20,
+            -1e20,
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            2047.5,
+            -2048.25,
+        ];
+        let mut x = 0x1234_5678u32;
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            let v = f32::from_bits(x);
+            if v.is_finite() {
+                values.push(v);
+            }
+            values.push((x % 100_000) as f32 / 37.0 - 1350.0);
+        }
+        for v in values {
+            assert_eq!(floor(v), v.floor(), "{v:e}");
         }
     }
 
