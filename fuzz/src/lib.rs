@@ -271,6 +271,9 @@ impl Service {
                 engine,
                 rayd::app::AppOptions {
                     max_triangles: MAX_TRIANGLES,
+                    // Parsed scenes share this budget. The default (1 GiB) is a server's;
+                    // a small one keeps a long run's memory flat and exercises eviction.
+                    geometry_bytes: 16 << 20,
                     ..Default::default()
                 },
             );
