@@ -129,9 +129,9 @@ impl Bundle {
 
     /// Level `k` at `uv` with `filter`, each slot in `mask` as
     /// [`super::texture::Texels::sample`] computes it. Bilinear lookups (nearly all) read
-    /// the four records once and then filter slot by slot: four slots' taps at once are
-    /// sixteen vectors, more than the registers, and the generic filter over `[Vec4; 4]`
-    /// spilled them (a third of a shading point's instructions went to this lookup).
+    /// the four records once and then filter slot by slot, which callgrind counts 13%
+    /// cheaper than [`filter_level`] over `[Vec4; 4]` (BENCHMARKS.md §31: these lookups
+    /// are about a quarter of a textured path frame's shading instructions).
     #[inline]
     fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
         let l = &self.levels[k];

@@ -366,7 +366,8 @@ impl Bilinear {
 }
 
 /// `x.floor()` for finite `x`, without the libm call that `floor` compiles to on x86-64's
-/// baseline (SSE2 has no rounding instruction): every bilinear lookup takes two.
+/// baseline (SSE2 has no rounding instruction): every bilinear lookup takes two. Only
+/// `-0.0` differs, giving `+0.0`; a lookup's `uv · size − 0.5` is never `-0.0`.
 #[inline(always)]
 pub(crate) fn floor(x: f32) -> f32 {
     // At 2^23 and beyond every f32 is an integer.
