@@ -23,6 +23,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import socket
 import statistics
 import struct
@@ -61,6 +62,8 @@ def main():
     ap.add_argument("--requests", type=int, default=60)
     ap.add_argument("--gap", type=float, default=0.0)
     ap.add_argument("--strace", action="store_true")
+    ap.add_argument("--perf", metavar="FILE",
+                    help="record the server's CPU during the updates with `perf record -g` into FILE")
     ap.add_argument("--bin", default="target/release/rayd")
     argv = sys.argv[1:]
     cut = argv.index("--") if "--" in argv else len(argv)
@@ -81,6 +84,11 @@ def main():
                 ["strace", "-f", "-T", "-e", "trace=fsync,renameat2", "-o", log,
                  "-p", str(server.pid)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             time.sleep(0.5)
+        if a.perf:
+            tracer = subprocess.Popen(
+                ["perf", "record", "-q", "-g", "-o", a.perf, "-p", str(server.pid)],
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            time.sleep(0.5)
         ms = []
         for _ in range(a.requests):
             struct.pack_into("<f", tri, y, struct.unpack_from("<f", tri, y)[0] + 1e-4)
@@ -89,7 +97,10 @@ def main():
                                    conn=conn)
             ms.append(phases[3] * 1e3)
         if tracer:
-            tracer.terminate()
+            if a.perf:
+                tracer.send_signal(signal.SIGINT)
+            else:
+                tracer.terminate()
             tracer.wait()
         time.sleep(1.0)
         stored = sum(os.path.getsize(os.path.join(root, f))
