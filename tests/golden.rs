@@ -98,6 +98,7 @@ fn render_case(case: &Case) -> Vec<u8> {
         o,
         bounds.as_ref(),
         Some(&surfaces),
+        None,
         &ALL_AT_ONCE,
     )
     .unwrap();

@@ -50,7 +50,17 @@ fn render_on(
     let bounds = rayd::scene::bounds_of(tris);
     let aspect = options.width as f64 / options.height as f64;
     let cam = ViewCamera::choose_from(camera, &[], bounds, aspect).unwrap();
-    render(tris, accel, &cam, options, bounds.as_ref(), surfaces, waves).unwrap()
+    render(
+        tris,
+        accel,
+        &cam,
+        options,
+        bounds.as_ref(),
+        surfaces,
+        None,
+        waves,
+    )
+    .unwrap()
 }
 
 fn look() -> CameraChoice {
@@ -312,7 +322,7 @@ fn pixels_outside_the_scenes_rectangle_are_the_misses_they_would_trace() {
         );
         for waves in [ALL_AT_ONCE, InPlace { wave_seconds: 1e-5 }] {
             let go = |b: Option<&rayd::geometry::Aabb>| {
-                render(&tris, accel.as_ref(), &cam, &options, b, None, &waves).unwrap()
+                render(&tris, accel.as_ref(), &cam, &options, b, None, None, &waves).unwrap()
             };
             let (culled, fewer) = go(Some(&bounds));
             let (traced, all) = go(None);

@@ -661,14 +661,10 @@ fn scenes_evicted_from_memory_come_back_from_the_store() {
     );
     assert_eq!(put.status, 200, "{}", String::from_utf8_lossy(&put.body));
     let render = || {
-        let r = s.req(
-            "POST",
-            &format!("/v1/scenes/{id}/render"),
-            &[("Content-Type", "application/json")],
+        let job = s.submit_render(
+            &id,
             br#"{"width": 16, "height": 12, "spp": 1, "integrator": "path", "version": 1, "time": 0.5}"#,
         );
-        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
-        let job = r.json()["id"].as_str().unwrap().to_string();
         assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
         s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[])
             .body

@@ -221,12 +221,12 @@ pub struct LightKey {
     /// The sky's radiance, as bits.
     pub sky: [u32; 3],
     /// Whether emissive triangles and the sky are in the table.
-    pub area: bool,
+    pub light_sampling: bool,
 }
 
 /// Path-traced frames' light tables ([`LightSampler`]), kept between render jobs of the
 /// same positions: weighing a textured scene's emitters reads their emissive texels, as
-/// many instructions as a small frame's shading (BENCHMARKS.md "Still to measure").
+/// many instructions as a small frame's texture lookups (BENCHMARKS.md §30).
 pub struct LightCache(Counted<LightKey, Arc<LightSampler>>);
 
 impl LightCache {

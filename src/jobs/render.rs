@@ -369,7 +369,7 @@ impl Engine {
                     let key = LightKey {
                         geometry: g.key.clone(),
                         sky: options.sky.map(f32::to_bits),
-                        area: options.light_sampling,
+                        light_sampling: options.light_sampling,
                     };
                     Some(self.lights().get_or_build(key, || {
                         crate::render::light_table(&g.triangles, surfaces, &options, &waves)
@@ -377,7 +377,7 @@ impl Engine {
                 }
                 _ => None,
             };
-            let (image, stats) = crate::render::render_lit(
+            let (image, stats) = crate::render::render(
                 &g.triangles,
                 prepared.accel.as_ref(),
                 &camera,

@@ -136,15 +136,7 @@ impl Bundle {
     fn level(&self, k: usize, uv: Vec2, filter: Filter, mask: [bool; SLOTS]) -> [Vec4; SLOTS] {
         let l = &self.levels[k];
         let tables = decode_tables();
-        let decode = |p: &[[u8; 4]; SLOTS]| {
-            std::array::from_fn(|s| {
-                if mask[s] {
-                    tables.decode(p[s], SLOT_IS_COLOUR[s])
-                } else {
-                    Vec4::ZERO
-                }
-            })
-        };
+        let slot = |p: &[[u8; 4]; SLOTS], s: usize| tables.decode(p[s], SLOT_IS_COLOUR[s]);
         let (w, h) = (i64::from(l.width), i64::from(l.height));
         let x = uv.x * w as f32 - 0.5;
         let y = uv.y * h as f32 - 0.5;
@@ -154,7 +146,10 @@ impl Bundle {
                 (l.width, l.height),
                 self.filtering.wrap,
                 filter,
-                |x, y| decode(&l.texels[y as usize * l.width as usize + x as usize]),
+                |x, y| {
+                    let p = &l.texels[y as usize * l.width as usize + x as usize];
+                    std::array::from_fn(|s| if mask[s] { slot(p, s) } else { Vec4::ZERO })
+                },
             );
         }
         let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
@@ -170,9 +165,8 @@ impl Bundle {
             if !mask[s] {
                 return Vec4::ZERO;
             }
-            let d = |p: &[[u8; 4]; SLOTS]| tables.decode(p[s], SLOT_IS_COLOUR[s]);
-            let top = d(taps[0]).blend(d(taps[1]), b.fx);
-            let bottom = d(taps[2]).blend(d(taps[3]), b.fx);
+            let top = slot(taps[0], s).blend(slot(taps[1], s), b.fx);
+            let bottom = slot(taps[2], s).blend(slot(taps[3], s), b.fx);
             top.blend(bottom, b.fy)
         })
     }

@@ -20,7 +20,7 @@
 
 use glam::{Vec2, Vec4};
 
-use super::texture::{Blend, Texels};
+use super::texture::{floor, Blend, Texels};
 use crate::scene::{Filter, Mipmap, Sampler, Wrap};
 
 /// How a texture is filtered: a glTF sampler, its absent filters made definite.
@@ -132,7 +132,7 @@ pub(crate) fn across_levels<T: Blend>(
         Mipmap::None => level(0, f.min),
         Mipmap::Nearest => level(((lod - 0.5).ceil() as usize).min(last), f.min),
         Mipmap::Linear => {
-            let l = lod.floor();
+            let l = floor(lod);
             let k = l as usize;
             if k >= last {
                 return level(last, f.min);

@@ -332,26 +332,12 @@ pub fn light_table<W: Waves + ?Sized>(
 /// by `waves`. `bounds`, a box around `triangles` (`None`: not known), tells which pixels'
 /// camera rays can hit anything; only those are traced. `surfaces` holds the
 /// materials and lights that `path` and the `albedo` and `normal` AOVs use; without it every
-/// triangle has glTF's default material, face normals and no light but the sky.
-pub fn render<W: Waves + ?Sized>(
-    triangles: &[Triangle],
-    accel: &dyn Intersector,
-    camera: &ViewCamera,
-    options: &RenderOptions,
-    bounds: Option<&Aabb>,
-    surfaces: Option<&Surfaces>,
-    waves: &W,
-) -> Result<(Image, RenderStats), W::Error> {
-    render_lit(
-        triangles, accel, camera, options, bounds, surfaces, None, waves,
-    )
-}
-
-/// [`render`] with the frame's light table given, when the caller kept the one an earlier
-/// frame of the same positions, surfaces, `sky` and `light_sampling` built
-/// ([`LightSampler::new`]); `None` builds it (for `path`).
+/// triangle has glTF's default material, face normals and no light but the sky. `lights`
+/// is a `path` frame's light table when the caller kept the one an earlier frame of the
+/// same positions, surfaces, `sky` and `light_sampling` built ([`light_table`]); `None`
+/// builds it.
 #[allow(clippy::too_many_arguments)]
-pub fn render_lit<W: Waves + ?Sized>(
+pub fn render<W: Waves + ?Sized>(
     triangles: &[Triangle],
     accel: &dyn Intersector,
     camera: &ViewCamera,

@@ -323,7 +323,7 @@ pub(crate) fn filter_level<T: Blend>(
     }
     match filter {
         Filter::Nearest => {
-            let (i, j) = ((x + 0.5).floor() as i64, (y + 0.5).floor() as i64);
+            let (i, j) = (floor(x + 0.5) as i64, floor(y + 0.5) as i64);
             texel(wrap_index(i, w, wrap[0]), wrap_index(j, h, wrap[1]))
         }
         Filter::Linear => {
@@ -365,9 +365,11 @@ impl Bilinear {
     }
 }
 
-/// `x.floor()` for finite `x`, without the libm call that `floor` compiles to on x86-64's
-/// baseline (SSE2 has no rounding instruction): every bilinear lookup takes two. Only
-/// `-0.0` differs, giving `+0.0`; a lookup's `uv · size − 0.5` is never `-0.0`.
+/// `x.floor()` without the libm call that `floor` compiles to on x86-64's baseline (SSE2
+/// has no rounding instruction): every texture lookup takes two or three. Infinities and
+/// NaN pass through as they are; only `-0.0` differs, giving `+0.0`, which no caller can
+/// tell apart (the taps are cast to integers, and a level of detail is floored only when
+/// positive).
 #[inline(always)]
 pub(crate) fn floor(x: f32) -> f32 {
     // At 2^23 and beyond every f32 is an integer.
