@@ -347,6 +347,12 @@ async fn metrics_use_route_templates() {
         bytes: 6,
         ..CacheStats::default()
     });
+    s.metrics.set_light_cache(&CacheStats {
+        hits: 7,
+        misses: 8,
+        bytes: 9,
+        ..CacheStats::default()
+    });
     s.metrics.set_upload_rate(2.5e8);
     let text = body_text(send(&app, get("/metrics")).await).await;
     assert!(
@@ -380,6 +386,9 @@ async fn metrics_use_route_templates() {
         "rayd_texture_cache_hits_total 4",
         "rayd_texture_cache_misses_total 5",
         "rayd_texture_cache_bytes 6",
+        "rayd_light_cache_hits_total 7",
+        "rayd_light_cache_misses_total 8",
+        "rayd_light_cache_bytes 9",
     ] {
         assert!(text.contains(line), "{line}: {text}");
     }

@@ -410,6 +410,7 @@ fn the_service_end_to_end() {
     );
     assert_eq!(after.get(lh), before.get(lh) + 1.0);
     assert_eq!(after.get(lm), before.get(lm));
+    assert!(after.get("rayd_light_cache_bytes") > 0.0);
     // A render's rays count among the rays traced.
     let traced = "rayd_rays_traced_total";
     assert!(render_rays > 0.0 && after.get(traced) == before.get(traced) + render_rays);

@@ -47,6 +47,7 @@ pub struct Metrics {
     texture_bytes: IntGauge,
     light_hits: IntCounter,
     light_misses: IntCounter,
+    light_bytes: IntGauge,
     upload_rate: Gauge,
     body_bytes: IntGauge,
     body_refused: IntCounterVec,
@@ -228,6 +229,13 @@ impl Metrics {
                     "Path-traced frames that built their light table.",
                 )?,
             )?,
+            light_bytes: reg(
+                r,
+                IntGauge::new(
+                    "light_cache_bytes",
+                    "Bytes of light tables held in the light-table cache.",
+                )?,
+            )?,
             upload_rate: reg(
                 r,
                 Gauge::new(
@@ -309,10 +317,11 @@ impl Metrics {
             .set(c.bytes.min(i64::MAX as usize) as i64);
     }
 
-    /// Sets the light-table cache's counters.
+    /// Sets the light-table cache's counters and size.
     pub fn set_light_cache(&self, c: &CacheStats) {
         catch_up(&self.light_hits, c.hits);
         catch_up(&self.light_misses, c.misses);
+        self.light_bytes.set(c.bytes.min(i64::MAX as usize) as i64);
     }
 
     /// Sets the rate at which `auto` expects trace bodies to arrive.
