@@ -685,3 +685,101 @@ fn every_shared_scene_loads_with_shading_data() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// A 1 × 1 RGBA PNG of `rgba`, as a data URI.
+fn png_uri(rgba: [u8; 4]) -> String {
+    use base64::Engine as _;
+    let mut png = Vec::new();
+    {
+        let mut e = png::Encoder::new(&mut png, 1, 1);
+        e.set_color(png::ColorType::Rgba);
+        e.write_header().unwrap().write_image_data(&rgba).unwrap();
+    }
+    format!(
+        "data:image/png;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&png)
+    )
+}
+
+/// `KHR_materials_specular`'s two textures, from a glTF file to the BRDF a hit shades
+/// with: the strength texture's alpha scales `specularFactor`, the colour texture's RGB
+/// (sRGB-decoded) scales `specularColorFactor`.
+#[test]
+fn specular_textures_reach_the_brdf() {
+    use base64::Engine as _;
+    let mut bin: Vec<u8> = [0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    bin.extend(
+        [0f32, 0.0, 1.0, 0.0, 0.0, 1.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes()),
+    );
+    let buffer = format!(
+        "data:application/octet-stream;base64,{}",
+        base64::engine::general_purpose::STANDARD.encode(&bin)
+    );
+    let file = |specular: serde_json::Value| {
+        serde_json::to_vec(&json!({
+            "asset": {"version": "2.0"},
+            "extensionsUsed": ["KHR_materials_specular"],
+            "buffers": [{"byteLength": 60, "uri": buffer}],
+            "bufferViews": [
+                {"buffer": 0, "byteLength": 36},
+                {"buffer": 0, "byteOffset": 36, "byteLength": 24}
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                 "min": [0, 0, 0], "max": [1, 1, 0]},
+                {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"}
+            ],
+            "images": [
+                {"uri": png_uri([255, 255, 255, 64])},
+                {"uri": png_uri([255, 128, 0, 255])}
+            ],
+            "textures": [{"source": 0}, {"source": 1}],
+            "materials": [{"extensions": {"KHR_materials_specular": specular}}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+                                        "material": 0}]}],
+            "nodes": [{"mesh": 0}],
+            "scenes": [{"nodes": [0]}]
+        }))
+        .unwrap()
+    };
+    let bsdf = |specular: serde_json::Value| {
+        let s = load_with(
+            &file(specular),
+            None,
+            &LoadOptions::default(),
+            Parts::Shading,
+        )
+        .unwrap();
+        let surfaces = rayd::render::surface::Surfaces::of(&s).unwrap();
+        let hit = rayd::geometry::Hit {
+            t: 1.0,
+            u: 0.25,
+            v: 0.25,
+            prim: 0,
+        };
+        surfaces
+            .at(&s.triangles[0], &hit, glam::Vec3::NEG_Z, 0.01)
+            .bsdf
+    };
+    let factors = json!({"specularFactor": 0.8, "specularColorFactor": [1.0, 0.5, 0.25]});
+    let plain = bsdf(factors.clone());
+    assert_eq!(plain.specular, 0.8);
+    let mut with = factors.clone();
+    with["specularTexture"] = json!({"index": 0});
+    let strength = bsdf(with).specular;
+    assert!((strength - 0.8 * 64.0 / 255.0).abs() < 1e-6, "{strength}");
+    let mut with = factors;
+    with["specularColorTexture"] = json!({"index": 1});
+    let f0 = bsdf(with).f0_dielectric;
+    // sRGB code 128 is 0.2158 in linear light.
+    let want = 0.04 * glam::Vec3::new(1.0, 0.5 * 0.2158, 0.0);
+    assert!(
+        (f0 - want).abs().max_element() < 1e-5,
+        "{f0} against {want}"
+    );
+}

@@ -18,7 +18,7 @@ use glam::{DMat4, DVec3, Vec2, Vec3, Vec4};
 
 use super::brdf::Bsdf;
 use super::bundle::Bundle;
-use super::texture::{slots, Lookup, TextureError, TextureSet, SLOT_IS_COLOUR};
+use super::texture::{slots, specular_slots, Lookup, TextureError, TextureSet, SLOT_IS_COLOUR};
 use crate::geometry::{Hit, Triangle};
 use crate::scene::{AlphaMode, LightKind, Material, Scene, Shading};
 
@@ -533,9 +533,10 @@ impl Surfaces {
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
         let refs = slots(m);
+        let has_specular = m.specular.texture.is_some() || m.specular.color_texture.is_some();
         // The footprint only where a texture will read it.
-        if refs.iter().all(Option::is_none) {
-            return self.shaded(m, tri, &at, ng, [None; 4]);
+        if refs.iter().all(Option::is_none) && !has_specular {
+            return self.shaded(m, tri, &at, ng, [None; 4], [None; 2]);
         }
         let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
         // The four lookups: from the material's bundle (one record a tap) when it has one.
@@ -548,11 +549,18 @@ impl Surfaces {
                 refs[k].and_then(|r| self.textures.sample(&r, &uv, SLOT_IS_COLOUR[k]))
             }),
         };
-        self.shaded(m, tri, &at, ng, texels)
+        let specular = if has_specular {
+            specular_slots(m)
+                .map(|(r, colour)| r.and_then(|r| self.textures.sample(&r, &uv, colour)))
+        } else {
+            [None; 2]
+        };
+        self.shaded(m, tri, &at, ng, texels, specular)
     }
 
     /// The surface point of material `m` at `at`, given its four textures' values there
-    /// (base colour, metallic-roughness, normal, emissive; `None` where it has none).
+    /// (base colour, metallic-roughness, normal, emissive; `None` where it has none) and
+    /// its two `KHR_materials_specular` textures' (strength in alpha, colour).
     /// Inlined into both of [`Surfaces::at`]'s paths, so that untextured shading pays no
     /// call for the split.
     #[inline(always)]
@@ -563,6 +571,7 @@ impl Surfaces {
         at: &Interp,
         ng: Vec3,
         [t_base, t_mr, t_normal, t_emissive]: [Option<Vec4>; 4],
+        [t_specular, t_specular_colour]: [Option<Vec4>; 2],
     ) -> SurfacePoint {
         // The interpolated normal as stored (its own side), or the face normal.
         let smooth = at
@@ -599,8 +608,8 @@ impl Surfaces {
             base,
             m.metallic_factor * mr.z,
             m.roughness_factor * mr.y,
-            m.specular.factor,
-            Vec3::from(m.specular.color_factor),
+            m.specular.factor * t_specular.map_or(1.0, |t| t.w),
+            Vec3::from(m.specular.color_factor) * t_specular_colour.unwrap_or(Vec4::ONE).truncate(),
         );
         SurfacePoint {
             ng,
@@ -780,6 +789,91 @@ mod tests {
         let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
         let n = shading_normal(&s, &tri, Vec3::Z);
         assert!(n.z < 0.0 && (n.length() - 1.0).abs() < 1e-5, "{n}");
+    }
+
+    /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
+    /// `specularTexture`, the colour by the RGB of `specularColorTexture` (sRGB-decoded).
+    #[test]
+    fn specular_textures_scale_the_specular_factors() {
+        use super::super::texture::{Texels, TextureSet};
+        use crate::render::mipmap::Filtering;
+        use crate::scene::{Filter, Specular, Wrap};
+        let tri = Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        };
+        let mut shading = Shading::flat(1);
+        shading.materials = vec![0];
+        shading.uv0 = vec![Vec2::ZERO; 3];
+        let r = |texture| {
+            Some(TextureRef {
+                texture,
+                tex_coord: 0,
+                transform: None,
+            })
+        };
+        let material = |texture, color_texture| Material {
+            base_color_factor: [0.5, 0.5, 0.5, 1.0],
+            specular: Specular {
+                factor: 0.8,
+                texture,
+                color_factor: [1.0, 0.5, 0.25],
+                color_texture,
+            },
+            ..Material::default()
+        };
+        // Texture 0: strength 0.25 in alpha (its RGB must not matter). Texture 1: colour
+        // (1, 0.5, 0) as stored, whose sRGB decode the colour lookup must apply. Texture
+        // 2: strength 0.
+        let one = |rgba: [f32; 4]| {
+            (
+                Texels::from_rgba(1, 1, vec![rgba]).unwrap(),
+                Filtering::single(Filter::Nearest, [Wrap::Repeat; 2]),
+            )
+        };
+        let textures = || {
+            TextureSet::from_texels(vec![
+                one([0.9, 0.9, 0.9, 0.25]),
+                one([1.0, 0.5, 0.0, 1.0]),
+                one([1.0, 1.0, 1.0, 0.0]),
+            ])
+        };
+        let hit = Hit {
+            t: 1.0,
+            u: 0.25,
+            v: 0.25,
+            prim: 0,
+        };
+        let bsdf = |m: Material| {
+            Surfaces::from_parts(shading.clone(), vec![m], textures(), Vec::new())
+                .at(&tri, &hit, Vec3::NEG_Z, 0.01)
+                .bsdf
+        };
+        let plain = bsdf(material(None, None));
+        assert_eq!(plain.specular, 0.8);
+        assert_eq!(plain.f0_dielectric, 0.04 * Vec3::new(1.0, 0.5, 0.25));
+        let strength = bsdf(material(r(0), None));
+        assert_eq!(strength.specular, 0.8 * 0.25);
+        assert_eq!(strength.f0_dielectric, plain.f0_dielectric);
+        let coloured = bsdf(material(None, r(1)));
+        assert_eq!(coloured.specular, 0.8);
+        // sRGB 0.5 in linear light (IEC 61966-2-1).
+        let half = ((0.5f32 + 0.055) / 1.055).powf(2.4);
+        let want = 0.04 * Vec3::new(1.0, 0.5, 0.25) * Vec3::new(1.0, half, 0.0);
+        assert!(
+            (coloured.f0_dielectric - want).abs().max_element() < 1e-3 * want.max_element(),
+            "{} against {want}",
+            coloured.f0_dielectric
+        );
+        // A strength texture of alpha 0 makes the material purely diffuse, as factor 0 does.
+        let none = bsdf(material(r(2), None));
+        let diffuse = bsdf(Material {
+            specular: Specular {
+                factor: 0.0,
+                ..material(None, None).specular
+            },
+            ..material(None, None)
+        });
+        assert_eq!(none, diffuse);
     }
 
     #[test]

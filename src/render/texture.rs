@@ -548,12 +548,17 @@ impl Lookup {
 
 impl TextureSet {
     /// Decodes every image that a material of `scene` samples through a texture this
-    /// renderer uses (base colour, metallic-roughness, normal, emissive), each image once,
+    /// renderer uses (base colour, metallic-roughness, normal, emissive, and
+    /// `KHR_materials_specular`'s two), each image once,
     /// and builds its pyramid for each use.
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
         let mut used = vec![[false; 2]; scene.textures.len()];
         for m in &scene.materials {
-            for (r, colour) in slots(m).into_iter().zip(SLOT_IS_COLOUR) {
+            let all = slots(m)
+                .into_iter()
+                .zip(SLOT_IS_COLOUR)
+                .chain(specular_slots(m));
+            for (r, colour) in all {
                 if let Some(u) = r.and_then(|r| used.get_mut(r.texture)) {
                     u[colour as usize] = true;
                 }
@@ -637,12 +642,15 @@ impl TextureSet {
             })
             .collect::<Vec<_>>();
         // A pyramid that only bundled materials read lives on in their bundles alone.
+        // The specular textures are never bundled: every material reads them apart.
         let mut needed = vec![[false; 2]; textures.len()];
         for (m, b) in scene.materials.iter().zip(&bundles) {
-            if b.is_some() {
-                continue;
-            }
-            for (r, colour) in slots(m).into_iter().zip(SLOT_IS_COLOUR) {
+            let apart = if b.is_some() { [None; SLOTS] } else { slots(m) };
+            let all = apart
+                .into_iter()
+                .zip(SLOT_IS_COLOUR)
+                .chain(specular_slots(m));
+            for (r, colour) in all {
                 if let Some(n) = r.and_then(|r| needed.get_mut(r.texture)) {
                     n[colour as usize] = true;
                 }
@@ -735,6 +743,17 @@ pub fn slots(m: &crate::scene::Material) -> [Option<TextureRef>; SLOTS] {
         m.metallic_roughness_texture,
         m.normal_texture,
         m.emissive_texture,
+    ]
+}
+
+/// Material `m`'s `KHR_materials_specular` textures, each with whether it holds colour:
+/// `specularTexture` (data: its alpha channel scales `specularFactor`) and
+/// `specularColorTexture` (sRGB colour scaling `specularColorFactor`). Rare enough (no
+/// scene of the test set has them) that they are read apart, never bundled.
+pub fn specular_slots(m: &crate::scene::Material) -> [(Option<TextureRef>, bool); 2] {
+    [
+        (m.specular.texture, false),
+        (m.specular.color_texture, true),
     ]
 }
 
@@ -942,6 +961,68 @@ mod tests {
             assert_eq!(direct, via);
             assert!(set.sample(&r(k, 1, None).unwrap(), &at, srgb).is_some());
         }
+    }
+
+    /// A bundled material's `KHR_materials_specular` textures are read apart: the
+    /// pyramids they need stay even where the bundle holds the same image (here its
+    /// metallic-roughness texture as the specular strength), decoded for their own use
+    /// (the colour texture as sRGB).
+    #[test]
+    fn specular_textures_are_decoded_beside_bundles() {
+        use crate::scene::{Image, Material, Specular, Texture};
+        let r = |texture| {
+            Some(TextureRef {
+                texture,
+                tex_coord: 0,
+                transform: None,
+            })
+        };
+        let scene = Scene {
+            images: (0..4)
+                .map(|i| Image {
+                    mime_type: "image/png".into(),
+                    bytes: png(i * 50).into(),
+                })
+                .collect(),
+            textures: (0..4)
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials: vec![Material {
+                base_color_texture: r(0),
+                metallic_roughness_texture: r(1),
+                normal_texture: r(2),
+                specular: Specular {
+                    texture: r(1),
+                    color_texture: r(3),
+                    ..Specular::default()
+                },
+                ..Material::default()
+            }],
+            ..Scene::default()
+        };
+        let set = TextureSet::of(&scene).unwrap();
+        assert!(set.bundle(0).is_some());
+        let at = Lookup {
+            uv: [Vec2::new(0.3, 0.6); 2],
+            log2_width: [-4.0; 2],
+        };
+        let strength = set.sample(&r(1).unwrap(), &at, false).unwrap();
+        let bundled = set.bundle(0).unwrap().sample(at.uv[0], at.log2_width[0])[1].unwrap();
+        assert_eq!(strength, bundled);
+        let colour = set.sample(&r(3).unwrap(), &at, true).unwrap();
+        let texels = Texels::decode(&png(150)).unwrap();
+        let want = Pyramid::new(texels, true).sample(
+            at.uv[0],
+            -4.0,
+            &Filtering::of(&Default::default()),
+            true,
+        );
+        assert_eq!(colour, want);
+        // Not decoded for a use nothing makes of it.
+        assert!(set.sample(&r(3).unwrap(), &at, false).is_none());
     }
 
     #[test]
