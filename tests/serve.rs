@@ -693,6 +693,27 @@ fn scenes_evicted_from_memory_come_back_from_the_store() {
     }
 }
 
+/// With one pool thread (`--threads 1`, or the default on a one-CPU host), a job whose
+/// step needs its scene parsed with materials, or posed at a time, does that work on its
+/// own thread: sent to the pool, it would wait behind the job waiting for it, and the
+/// server would hang every later upload and trace with it.
+#[test]
+fn one_pool_thread_renders_and_keeps_serving() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--threads", "1"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    for body in [
+        &br#"{"width": 16, "height": 12, "spp": 1, "integrator": "path"}"#[..],
+        br#"{"width": 16, "height": 12, "integrator": "primary", "frames": {"start": 0, "end": 0.2, "step": 0.1}}"#,
+    ] {
+        let job = s.submit_render(&id, body);
+        assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
+    }
+    let box_ = s.upload_sample("Box.glb");
+    assert!(box_["id"].is_string(), "{box_}");
+}
+
 /// `Prefer: respond-async` on a trace: `202` and a job whose result is the HIT1 body a
 /// synchronous trace answers; a body that the synchronous trace would refuse (over
 /// `--max-rays`, truncated) is refused the same way before any job is made.

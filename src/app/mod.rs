@@ -167,11 +167,16 @@ impl App {
     }
 
     /// Runs CPU work `f` on the engine's pool and awaits it, so that the async runtime's
-    /// threads never compute.
+    /// threads never compute. Awaited on a pool thread (a job's step waiting for its
+    /// scene's parse or pose), `f` runs right there: queued behind the job that waits for
+    /// it, it would never start on a pool of one thread.
     pub(crate) async fn cpu<T: Send + 'static>(
         &self,
         f: impl FnOnce() -> T + Send + 'static,
     ) -> Result<T, AppError> {
+        if self.inner.engine.on_pool() {
+            return Ok(f());
+        }
         let (tx, rx) = tokio::sync::oneshot::channel();
         self.inner.engine.spawn(move || {
             let _ = tx.send(f());

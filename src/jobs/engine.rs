@@ -193,6 +193,13 @@ impl Engine {
         self.pool.spawn(f);
     }
 
+    /// Whether the calling thread is one of the pool's: a job's step that waits for work
+    /// it would [`Engine::spawn`] must do that work itself instead, or, with every pool
+    /// thread waiting so (one with `--threads 1`), nothing would ever run it.
+    pub fn on_pool(&self) -> bool {
+        self.pool.current_thread_index().is_some()
+    }
+
     /// Hooks for a job that runs alone, nobody cancelling it (the command line).
     pub fn detached(&self) -> Control {
         Control::new(Arc::clone(&self.pool), CancelToken::new(), None, None)

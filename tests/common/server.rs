@@ -31,10 +31,17 @@ impl Server {
             .unwrap()
             .port();
         let addr = format!("127.0.0.1:{port}");
+        // Two pool threads unless `extra` names its own count.
+        let threads: &[&str] = if extra.contains(&"--threads") {
+            &[]
+        } else {
+            &["--threads", "2"]
+        };
         let child = Command::new(BIN)
             .args(["serve", "--addr", &addr, "--data-dir"])
             .arg(data)
-            .args(["--threads", "2", "--grace", "2"])
+            .args(threads)
+            .args(["--grace", "2"])
             .args(extra)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
