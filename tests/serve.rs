@@ -714,6 +714,51 @@ fn one_pool_thread_renders_and_keeps_serving() {
     assert!(box_["id"].is_string(), "{box_}");
 }
 
+/// Deleting a scene deletes its jobs, and stops those that run or wait: a long render
+/// of it ends within a wave instead of running on unseen, holding the pool.
+#[test]
+fn deleting_a_scene_stops_its_jobs() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &[]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let long = br#"{"width": 512, "height": 512, "spp": 1024, "bounces": 4, "integrator": "path"}"#;
+    let running = s.submit_render(&id, long);
+    let queued = s.submit_render(&id, long);
+    let t0 = std::time::Instant::now();
+    while s
+        .req("GET", &format!("/v1/jobs/{running}"), &[], &[])
+        .json()["state"]
+        != "running"
+    {
+        assert!(t0.elapsed().as_secs() < 30, "the render did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert_eq!(
+        s.req("DELETE", &format!("/v1/scenes/{id}"), &[], &[])
+            .status,
+        204
+    );
+    for job in [&running, &queued] {
+        assert_eq!(
+            s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).status,
+            404
+        );
+    }
+    let t1 = std::time::Instant::now();
+    loop {
+        let m = Metrics::scrape(&s);
+        if m.get("rayd_jobs_running") == 0.0 && m.get("rayd_jobs_queued") == 0.0 {
+            break;
+        }
+        assert!(
+            t1.elapsed().as_secs() < 10,
+            "the deleted scene's jobs still run"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
 /// `Prefer: respond-async` on a trace: `202` and a job whose result is the HIT1 body a
 /// synchronous trace answers; a body that the synchronous trace would refuse (over
 /// `--max-rays`, truncated) is refused the same way before any job is made.

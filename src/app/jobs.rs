@@ -548,6 +548,17 @@ impl App {
         self.forget_live(&id);
     }
 
+    /// Stops jobs `ids`, deleted with their scene: each ends within a wave, as a
+    /// cancelled job does, with no record left to write its end to.
+    pub(super) fn stop_deleted(&self, ids: &[String]) {
+        let mut live = self.inner.live.lock().unwrap_or_else(|e| e.into_inner());
+        for id in ids {
+            if let Some(l) = live.remove(id) {
+                l.cancel.cancel();
+            }
+        }
+    }
+
     fn forget_live(&self, id: &str) {
         self.inner
             .live

@@ -388,9 +388,11 @@ impl App {
         ))
     }
 
-    /// Deletes a scene, its versions, its cached structures and its decoded textures.
+    /// Deletes a scene, its versions, its jobs (stopping those that are queued or
+    /// running), its cached structures and its decoded textures.
     pub async fn delete_scene(&self, id: &str) -> Result<(), AppError> {
-        self.store().delete_scene(id).await?;
+        let unfinished = self.store().delete_scene(id).await?;
+        self.stop_deleted(&unfinished);
         self.inner.scenes.forget(id);
         self.engine().cache().forget_scene(id);
         self.engine().textures().forget_scene(id);
