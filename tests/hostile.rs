@@ -370,35 +370,37 @@ fn uris_that_name_server_files() {
         d["textures"] = json!([{"source": 0}]);
         d["materials"] = json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
         d["meshes"][0]["primitives"][0]["material"] = json!(0);
-        let r = f.upload(GLTF, &bytes_of(&d));
-        if r.status != 201 {
-            problem(&r, 400, &["image 0", uri]);
-        } else {
-            // Accepted for tracing (images are read only for renders): the render refuses.
-            let id = r.json()["id"].as_str().unwrap().to_owned();
-            let r = f.server.req(
-                "POST",
-                &format!("/v1/scenes/{id}/render"),
-                &[("Content-Type", "application/json")],
-                br#"{"width": 8, "height": 8, "integrator": "path"}"#,
-            );
-            let msg = if r.status == 202 {
-                let job = r.json()["id"].as_str().unwrap().to_owned();
-                let j = wait_job(&f.server, &job, 30);
-                assert_eq!(j["state"], "failed", "{j}");
-                j["error"].as_str().unwrap().to_owned()
-            } else {
-                problem(&r, r.status, &[])["detail"]
-                    .as_str()
-                    .unwrap()
-                    .to_owned()
-            };
-            assert!(msg.contains("image 0") && msg.contains(uri), "{msg}");
-            let r = f
-                .server
-                .req("DELETE", &format!("/v1/scenes/{id}"), &[], &[]);
-            assert!(r.status < 300, "{}", r.status);
-        }
+        // Refused at upload: the service keeps no scene that a render could not load.
+        problem(&f.upload(GLTF, &bytes_of(&d)), 400, &["image 0", uri]);
+    }
+    // So is every other flaw of the appearance a render reads and a trace does not.
+    let textured = |material: serde_json::Value| {
+        let mut d = triangle_doc();
+        d["materials"] = json!([material]);
+        d["meshes"][0]["primitives"][0]["material"] = json!(0);
+        d
+    };
+    let mut lit = triangle_doc();
+    lit["extensionsUsed"] = json!(["KHR_lights_punctual"]);
+    lit["nodes"][0]["extensions"] = json!({"KHR_lights_punctual": {"light": 3}});
+    let mut spot = triangle_doc();
+    spot["extensionsUsed"] = json!(["KHR_lights_punctual"]);
+    spot["extensions"] = json!({"KHR_lights_punctual": {"lights": [
+        {"type": "spot", "spot": {"innerConeAngle": 0.6, "outerConeAngle": 0.5}}]}});
+    spot["nodes"][0]["extensions"] = json!({"KHR_lights_punctual": {"light": 0}});
+    for (d, words) in [
+        (
+            textured(json!({"pbrMetallicRoughness": {"roughnessFactor": 2.0}})),
+            &["material 0", "roughness"][..],
+        ),
+        (
+            textured(json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": 5}}})),
+            &["texture 5"][..],
+        ),
+        (lit, &["light 3"][..]),
+        (spot, &["light 0", "cone"][..]),
+    ] {
+        problem(&f.upload(GLTF, &bytes_of(&d)), 400, words);
     }
     f.intact();
 

@@ -775,11 +775,19 @@ fn specular_textures_reach_the_brdf() {
     assert!((strength - 0.8 * 64.0 / 255.0).abs() < 1e-6, "{strength}");
     let mut with = factors;
     with["specularColorTexture"] = json!({"index": 1});
-    let f0 = bsdf(with).f0_dielectric;
+    let f0 = bsdf(with.clone()).f0_dielectric;
     // sRGB code 128 is 0.2158 in linear light.
     let want = 0.04 * glam::Vec3::new(1.0, 0.5 * 0.2158, 0.0);
     assert!(
         (f0 - want).abs().max_element() < 1e-5,
         "{f0} against {want}"
+    );
+    // A texture reading a third coordinate set is refused, naming it: only two are loaded.
+    with["specularColorTexture"] = json!({"index": 1, "texCoord": 2});
+    let e = load_with(&file(with), None, &LoadOptions::default(), Parts::Shading).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("specularColorTexture reads TEXCOORD_2"),
+        "{e}"
     );
 }

@@ -349,7 +349,11 @@ impl App {
         }
         let b = bytes.clone();
         let max = self.inner.max_triangles;
-        let scene = self.cpu(move || parse(kind, &b, max)).await??;
+        // Checked as a render would read it, so that nothing is stored that no render
+        // could load; kept as geometry only.
+        let scene = self
+            .cpu(move || parse_with(kind, &b, Parts::CheckedGeometry, max))
+            .await??;
         let summary = scene_info(&scene).to_string();
         let new = |blob| NewScene {
             blob,

@@ -55,6 +55,11 @@ pub enum Parts {
     /// Geometry plus per-vertex shading attributes, per-triangle materials, materials,
     /// textures (encoded, never decoded here) and lights: what a render needs.
     Shading,
+    /// What [`Parts::Geometry`] keeps, after reading and checking what [`Parts::Shading`]
+    /// would add of the document's own (materials, samplers, textures, image references,
+    /// punctual lights; no attribute and no image is decoded): what the service keeps of
+    /// an upload, which must refuse a file that a later render could not load.
+    CheckedGeometry,
 }
 
 /// Reads a whole file, naming it in the error.

@@ -111,9 +111,10 @@ impl PunctualLight {
                 }
                 let r = r2.sqrt();
                 let wi = d / r;
-                // glTF's recommended range window: (1 − (r/range)⁴)², clamped.
+                // KHR_lights_punctual's recommended range window, clamp(1 − (r/range)⁴, 0, 1)
+                // (not squared, as some engines' variant is).
                 let window = if range.is_finite() {
-                    (1.0 - (r / range).powi(4)).clamp(0.0, 1.0).powi(2)
+                    (1.0 - (r / range).powi(4)).clamp(0.0, 1.0)
                 } else {
                     1.0
                 };
@@ -528,15 +529,15 @@ impl Surfaces {
     /// ([`super::mipmap`]).
     pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> SurfacePoint {
         let prim = hit.prim as usize;
-        let ng = Vec3::from(tri.normal()).normalize_or_zero();
-        let ng = if ng.dot(dir) > 0.0 { -ng } else { ng };
+        let face = Vec3::from(tri.normal()).normalize_or_zero();
+        let ng = if face.dot(dir) > 0.0 { -face } else { face };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
         let refs = slots(m);
         let has_specular = m.specular.texture.is_some() || m.specular.color_texture.is_some();
         // The footprint only where a texture will read it.
         if refs.iter().all(Option::is_none) && !has_specular {
-            return self.shaded(m, tri, &at, ng, [None; 4], [None; 2]);
+            return self.shaded(m, tri, &at, face, ng, [None; 4], [None; 2]);
         }
         let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
         // The four lookups: from the material's bundle (one record a tap) when it has one.
@@ -555,29 +556,35 @@ impl Surfaces {
         } else {
             [None; 2]
         };
-        self.shaded(m, tri, &at, ng, texels, specular)
+        self.shaded(m, tri, &at, face, ng, texels, specular)
     }
 
     /// The surface point of material `m` at `at`, given its four textures' values there
     /// (base colour, metallic-roughness, normal, emissive; `None` where it has none) and
-    /// its two `KHR_materials_specular` textures' (strength in alpha, colour).
+    /// its two `KHR_materials_specular` textures' (strength in alpha, colour). `face` is
+    /// the triangle's unit normal as wound, `ng` the same turned towards the ray.
     /// Inlined into both of [`Surfaces::at`]'s paths, so that untextured shading pays no
     /// call for the split.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn shaded(
         &self,
         m: &Material,
         tri: &Triangle,
         at: &Interp,
+        face: Vec3,
         ng: Vec3,
         [t_base, t_mr, t_normal, t_emissive]: [Option<Vec4>; 4],
         [t_specular, t_specular_colour]: [Option<Vec4>; 2],
     ) -> SurfacePoint {
-        // The interpolated normal as stored (its own side), or the face normal.
+        // The interpolated normal as stored (its own side), or the face normal as wound:
+        // the normal map perturbs the front side's normal, and a back face then shows the
+        // whole perturbed normal reversed, as glTF says of double-sided back faces. (The
+        // normal already turned to the ray would build a mirrored tangent frame there.)
         let smooth = at
             .vec3(&self.shading.normals)
             .and_then(Vec3::try_normalize)
-            .unwrap_or(ng);
+            .unwrap_or(face);
         let mut ns = smooth;
         if let Some(r) = &m.normal_texture {
             if let Some(t) = t_normal {
@@ -785,10 +792,19 @@ mod tests {
         let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, t);
         let n = shading_normal(&s, &tri, down);
         assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
-        // Seen from behind, the whole frame turns to the ray's side.
+        // Seen from behind, the whole perturbed normal is reversed (glTF: a double-sided
+        // back face's normals are reversed), with vertex normals or without (here none),
+        // and with a mesh TANGENT.
         let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, Vec::new());
         let n = shading_normal(&s, &tri, Vec3::Z);
-        assert!(n.z < 0.0 && (n.length() - 1.0).abs() < 1e-5, "{n}");
+        assert!((n - Vec3::new(-0.6, 0.0, -0.8)).length() < 1e-5, "{n}");
+        let (s, tri) = normal_mapped([0.5, 0.8, 0.9], 1.0, Vec::new());
+        let n = shading_normal(&s, &tri, Vec3::Z);
+        assert!((n - Vec3::new(0.0, -0.6, -0.8)).length() < 1e-5, "{n}");
+        let t = vec![Vec4::new(1.0, 0.0, 0.0, 1.0); 3];
+        let (s, tri) = normal_mapped([0.5, 0.8, 0.9], 1.0, t);
+        let n = shading_normal(&s, &tri, Vec3::Z);
+        assert!((n - Vec3::new(0.0, -0.6, -0.8)).length() < 1e-5, "{n}");
     }
 
     /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
@@ -913,6 +929,22 @@ mod tests {
         let i = l.incident(Vec3::ZERO).unwrap();
         assert_eq!(i.irradiance, Vec3::splat(2.0));
         assert_eq!(i.wi, Vec3::Y);
+        // With a range of 4 at distance 2: the window 1 − (2/4)⁴ = 0.9375, over r².
+        let ranged = PunctualLight::Point {
+            position: Vec3::new(0.0, 2.0, 0.0),
+            intensity: Vec3::splat(8.0),
+            range: 4.0,
+            cone: None,
+        };
+        let i = ranged.incident(Vec3::ZERO).unwrap();
+        assert!(
+            (i.irradiance - Vec3::splat(8.0 * 0.9375 / 4.0))
+                .abs()
+                .max_element()
+                < 1e-6
+        );
+        // Nothing at or past the range.
+        assert!(ranged.incident(Vec3::new(0.0, -2.0, 0.0)).is_none());
         let spot = PunctualLight::Point {
             position: Vec3::new(0.0, 2.0, 0.0),
             intensity: Vec3::splat(8.0),

@@ -248,10 +248,20 @@ fn texture_ref(
         });
     }
     let transform = tt.map(|t| transform(m, slot, t)).transpose()?;
+    // The extension's texCoord overrides the reference's when present.
+    let tex_coord = tt.and_then(|t| t.tex_coord).unwrap_or(tex_coord);
+    // Only two sets are loaded: a third would read another set's coordinates unsaid.
+    if tex_coord > 1 {
+        return Err(bad_material(
+            m,
+            format!(
+                "{slot} reads TEXCOORD_{tex_coord}: only TEXCOORD_0 and TEXCOORD_1 are supported"
+            ),
+        ));
+    }
     Ok(TextureRef {
         texture: index,
-        // The extension's texCoord overrides the reference's when present.
-        tex_coord: tt.and_then(|t| t.tex_coord).unwrap_or(tex_coord),
+        tex_coord,
         transform,
     })
 }

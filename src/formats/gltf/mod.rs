@@ -474,6 +474,8 @@ pub fn load_limited(
         .iter()
         .any(|e| e == "KHR_mesh_quantization");
     let shading = parts == Parts::Shading;
+    // Appearance read (and checked) even where it is not kept.
+    let appearance_read = shading || parts == Parts::CheckedGeometry;
 
     let parents = nodes::check(&root)?;
     let order = nodes::scene_order(&root, scene_index, &parents)?;
@@ -514,8 +516,8 @@ pub fn load_limited(
         });
     }
 
-    let appearance = if shading {
-        Some(material::load(&root, &data, base_dir)?)
+    let appearance = if appearance_read {
+        Some(material::load(&root, &data, base_dir)?).filter(|_| shading)
     } else {
         None
     };
@@ -559,8 +561,8 @@ pub fn load_limited(
                 projection: projection(&root, c)?,
             });
         }
-        if shading {
-            if let Some(light) = material::light(&root, n)? {
+        if appearance_read {
+            if let Some(light) = material::light(&root, n)?.filter(|_| shading) {
                 lights.push(light);
                 rig.items.push(Item::Light { node: n });
             }
