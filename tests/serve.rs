@@ -759,6 +759,38 @@ fn deleting_a_scene_stops_its_jobs() {
     }
 }
 
+/// A synchronous trace takes its place in the queue when it can start, not while its
+/// body is still on the way: two uploads that stall after their first bytes leave a queue
+/// of two free for a render.
+#[test]
+fn stalled_trace_bodies_hold_no_place_in_the_queue() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--max-queued", "2"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    // 100 rays announced, only the 16-byte header sent.
+    let mut head = write_rays(&[]);
+    head[8..16].copy_from_slice(&100u64.to_le_bytes());
+    let stalled: Vec<std::net::TcpStream> = (0..2)
+        .map(|_| {
+            let mut c = std::net::TcpStream::connect(&s.addr).unwrap();
+            write!(
+                c,
+                "POST /v1/scenes/{id}/trace HTTP/1.1\r\nHost: x\r\nContent-Type: application/octet-stream\r\nContent-Length: {}\r\n\r\n",
+                16 + 100 * 32
+            )
+            .unwrap();
+            c.write_all(&head).unwrap();
+            c
+        })
+        .collect();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let job = s.submit_render(&id, br#"{"width": 8, "height": 8}"#);
+    assert_eq!(wait_job(&s, &job, 30)["state"], "succeeded");
+    drop(stalled);
+}
+
 /// `Prefer: respond-async` on a trace: `202` and a job whose result is the HIT1 body a
 /// synchronous trace answers; a body that the synchronous trace would refuse (over
 /// `--max-rays`, truncated) is refused the same way before any job is made.

@@ -613,9 +613,16 @@ impl App {
         Ok(Tri1Body::Encoded(self.cpu(move || write_tri(&tris)).await?))
     }
 
-    /// Admits a synchronous trace to the queue (before its body is read, so that a full
-    /// queue answers at once).
-    pub fn admit_trace(&self) -> Result<sched::Ticket, AppError> {
+    /// Refuses a synchronous trace before its body is read when the queue is full (or the
+    /// service is shutting down), so that a client does not upload a batch to hear 503.
+    /// The place itself is taken when the trace can start ([`App::begin_trace`]): a body
+    /// still on its way holds none, so slow uploads cannot fill the queue.
+    pub fn trace_has_room(&self) -> Result<(), AppError> {
+        Ok(self.engine().scheduler().has_room()?)
+    }
+
+    /// Admits a synchronous trace to the queue.
+    fn admit_trace(&self) -> Result<sched::Ticket, AppError> {
         Ok(self
             .engine()
             .scheduler()
@@ -628,17 +635,17 @@ impl App {
         self.engine().note_upload(bytes, seconds);
     }
 
-    /// Starts a synchronous trace of scene `id` (admitted with `ticket`) whose rays are
-    /// still to arrive; `rays` is the count the request's length announces, if it does.
-    /// Where the accelerator answers each ray on its own and the batch is large, the trace
-    /// starts on the rays that have arrived while the rest uploads (the structure is
-    /// prepared first, during the upload); otherwise it starts when all have arrived.
+    /// Starts a synchronous trace of scene `id` whose rays are still to arrive; `rays` is
+    /// the count the request's length announces, if it does. Where the accelerator answers
+    /// each ray on its own and the batch is large, the trace takes its place in the queue
+    /// now and starts on the rays that have arrived while the rest uploads (the structure
+    /// is prepared first, during the upload); otherwise it takes its place, and starts,
+    /// when all have arrived.
     pub async fn begin_trace(
         &self,
         id: &str,
         params: &TraceParams,
         rays: Option<usize>,
-        ticket: sched::Ticket,
     ) -> Result<TraceIntake, AppError> {
         let (geometry, _) = self.geometry(id, params.version, params.time).await?;
         let request = params.request();
@@ -651,9 +658,9 @@ impl App {
                 geometry,
                 request,
                 engine,
-                ticket,
             });
         };
+        let ticket = self.admit_trace()?;
         let (arrive, arrivals) = std::sync::mpsc::channel();
         let done = on_trace_thread(move || {
             let control = engine.control(Default::default(), None, ticket);
@@ -702,8 +709,6 @@ pub enum TraceIntake {
         request: trace::TraceRequest,
         /// The engine.
         engine: Arc<crate::jobs::Engine>,
-        /// The trace's place in the queue.
-        ticket: sched::Ticket,
     },
     /// The trace runs as the rays arrive.
     Streamed {
@@ -743,12 +748,15 @@ impl TraceIntake {
                 geometry,
                 request,
                 engine,
-                ticket,
-            } => on_trace_thread(move || {
-                let invalid = trace::validate_read(&mut rays, request.invalid)?;
-                let control = engine.control(Default::default(), None, ticket);
-                engine.trace(&geometry, &rays.rays, &request, invalid, &control)
-            })?,
+            } => {
+                // Its place in the queue, now that the whole batch is here.
+                let ticket = engine.scheduler().admit(sched::SYNC_PRIORITY, true)?;
+                on_trace_thread(move || {
+                    let invalid = trace::validate_read(&mut rays, request.invalid)?;
+                    let control = engine.control(Default::default(), None, ticket);
+                    engine.trace(&geometry, &rays.rays, &request, invalid, &control)
+                })?
+            }
         };
         Ok(done
             .await

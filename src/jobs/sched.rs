@@ -97,6 +97,20 @@ impl Scheduler {
         })
     }
 
+    /// Whether [`Scheduler::admit`] would admit a job now, without taking a place: a
+    /// request whose place is taken only after its body has arrived is refused at once
+    /// when the queue is already full or the service is shutting down.
+    pub fn has_room(&self) -> Result<(), JobError> {
+        let s = self.lock();
+        if s.shutting_down {
+            return Err(JobError::ShuttingDown);
+        }
+        if s.queued >= self.max_queued {
+            return Err(JobError::QueueFull(s.queued));
+        }
+        Ok(())
+    }
+
     /// Re-admits a job found queued or running when the process started (recovery): it
     /// bypasses the bound, since refusing it would lose acknowledged work.
     pub fn readmit(self: &Arc<Self>, priority: u16) -> Ticket {
@@ -219,11 +233,16 @@ mod tests {
     #[test]
     fn the_queue_is_bounded_and_tickets_free_their_place() {
         let s = Scheduler::new(2);
+        assert!(s.has_room().is_ok());
         let a = s.admit(50, false).unwrap();
         let _b = s.admit(50, false).unwrap();
         assert!(matches!(s.admit(50, false), Err(JobError::QueueFull(2))));
+        assert!(matches!(s.has_room(), Err(JobError::QueueFull(2))));
         drop(a);
+        assert!(s.has_room().is_ok());
         assert!(s.admit(50, false).is_ok());
+        s.shut_down();
+        assert!(matches!(s.has_room(), Err(JobError::ShuttingDown)));
     }
 
     #[test]

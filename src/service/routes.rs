@@ -373,8 +373,9 @@ async fn trace(
             .insert(header::LOCATION, location(format!("/v1/jobs/{}", view.id)));
         return Ok(resp);
     }
-    // Admitted before the body is read: a full queue answers at once.
-    let ticket = app.admit_trace()?;
+    // A full queue answers at once, before the body is read; the trace takes its place
+    // in the queue only when it can start (`App::begin_trace`).
+    app.trace_has_room()?;
     let declared = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
@@ -384,7 +385,7 @@ async fn trace(
         .and_then(|len| len.checked_sub(16))
         .filter(|records| records % 32 == 0)
         .map(|records| (records / 32) as usize);
-    let mut intake = app.begin_trace(&id, &params, announced, ticket).await?;
+    let mut intake = app.begin_trace(&id, &params, announced).await?;
     // The rays land in their final memory as the body arrives, and go to the trace in
     // pieces if it can start before the body ends.
     let mut sink = Ray1Sink::new(state.config.max_rays as usize, declared);
