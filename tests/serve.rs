@@ -217,6 +217,51 @@ fn the_service_end_to_end() {
     );
     assert_eq!(r.status, 415);
     assert_eq!(r.header("content-type"), Some("application/problem+json"));
+    assert_eq!(r.json()["field"], "Content-Type");
+    // Every route's 415 names the header, uploads and geometry updates too.
+    for (method, path) in [
+        ("POST", "/v1/scenes".to_string()),
+        ("PUT", format!("/v1/scenes/{id}/geometry")),
+    ] {
+        let r = s.req(method, &path, &[("Content-Type", "text/plain")], b"x");
+        assert_eq!(
+            (r.status, r.json()["field"].as_str()),
+            (415, Some("Content-Type")),
+            "{path}"
+        );
+    }
+    // A GLB whose JSON chunk runs past the end names the chunk's byte.
+    let mut glb = std::fs::read(scenes().join("Box.glb")).unwrap();
+    glb[12..16].copy_from_slice(&u32::MAX.to_le_bytes());
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        &glb,
+    );
+    assert_eq!(
+        (r.status, r.json()["byte_offset"].as_u64()),
+        (400, Some(12)),
+        "{}",
+        String::from_utf8_lossy(&r.body)
+    );
+    // A geometry update with a non-finite position names its byte.
+    let mut tri = s
+        .req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[])
+        .body;
+    tri[16 + 4..16 + 8].copy_from_slice(&f32::NAN.to_le_bytes());
+    let r = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        &tri,
+    );
+    assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
+    assert!(
+        r.json()["byte_offset"].as_u64().is_some(),
+        "{}",
+        String::from_utf8_lossy(&r.body)
+    );
     let r = s.req("POST", &trace_path, &octet, &body[..body.len() - 5]);
     assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
     assert_eq!(r.json()["byte_offset"], 8);

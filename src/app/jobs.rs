@@ -652,7 +652,7 @@ impl App {
         let mut rays: Vec<Ray> =
             crate::formats::binary::read_rays(&bytes).map_err(|e| AppError::BadUpload {
                 detail: e.to_string(),
-                byte_offset: None,
+                byte_offset: e.byte_offset(),
             })?;
         drop(bytes);
         let invalid = trace::validate(&mut rays, req.params.invalid)?;

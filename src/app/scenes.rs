@@ -139,23 +139,22 @@ fn parse(kind: UploadKind, bytes: &[u8], max: u64) -> Result<Scene, AppError> {
 
 /// [`parse`] keeping `parts` (a TRI1 upload has geometry only).
 fn parse_with(kind: UploadKind, bytes: &[u8], parts: Parts, max: u64) -> Result<Scene, AppError> {
-    let upload = |detail: String| AppError::BadUpload {
+    let upload = |detail: String, byte_offset: Option<u64>| AppError::BadUpload {
         detail,
-        byte_offset: None,
+        byte_offset,
     };
+    let binary = |e: crate::formats::binary::BinaryError| upload(e.to_string(), e.byte_offset());
     match kind {
         UploadKind::Tri => {
-            let count = tri_count(bytes).map_err(|e| upload(e.to_string()))?;
+            let count = tri_count(bytes).map_err(binary)?;
             if count as u64 > max {
-                return Err(upload(too_many_triangles(count as u64, max)));
+                return Err(upload(too_many_triangles(count as u64, max), Some(8)));
             }
-            read_tri(bytes)
-                .map(Scene::from_triangles)
-                .map_err(|e| upload(e.to_string()))
+            read_tri(bytes).map(Scene::from_triangles).map_err(binary)
         }
         UploadKind::Glb | UploadKind::Gltf => {
             crate::formats::gltf::load_limited(bytes, None, &LoadOptions { time: None }, parts, max)
-                .map_err(|e| upload(e.to_string()))
+                .map_err(|e| upload(e.to_string(), e.byte_offset()))
         }
     }
 }
@@ -451,7 +450,7 @@ impl App {
         let expected = loaded.static_pose.len();
         let bad = |e: crate::formats::binary::BinaryError| AppError::BadUpload {
             detail: e.to_string(),
-            byte_offset: None,
+            byte_offset: e.byte_offset(),
         };
         // Header and length first, reading no record: a malformed body, or one for
         // another scene, is refused before any work.

@@ -170,6 +170,23 @@ pub enum BinaryError {
     },
 }
 
+impl BinaryError {
+    /// The byte of the body where the error lies, where it has one: what a problem
+    /// document's `byte_offset` names.
+    pub fn byte_offset(&self) -> Option<u64> {
+        match self {
+            BinaryError::ShortHeader { len, .. } => Some(*len as u64),
+            BinaryError::WrongMagic { .. } => Some(0),
+            BinaryError::UnknownVersion { .. } => Some(4),
+            BinaryError::UnknownFormat { .. } => Some(6),
+            BinaryError::CountOverflow { .. }
+            | BinaryError::WrongLength { .. }
+            | BinaryError::TooMany { .. } => Some(8),
+            BinaryError::NonFiniteTriangle { offset, .. } => Some(*offset as u64),
+        }
+    }
+}
+
 struct Header {
     format: u16,
     count: usize,

@@ -180,6 +180,7 @@ impl ApiError {
     }
 
     /// 415: the body's `Content-Type` is not one this route takes (`accepted` lists them).
+    /// The place is always the `Content-Type` header, so every 415 names it.
     pub fn unsupported_media_type(detail: impl Into<Cow<'static, str>>, accepted: &[&str]) -> Self {
         Self::new(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
@@ -188,6 +189,7 @@ impl ApiError {
             detail,
         )
         .with("accepted", accepted)
+        .with_field("Content-Type")
     }
 
     /// 422: well-formed but invalid (NaN rays, a wrong triangle count, a limit exceeded).

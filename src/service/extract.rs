@@ -43,8 +43,7 @@ fn check_json_content_type(headers: &HeaderMap) -> Result<(), ApiError> {
         return Err(ApiError::unsupported_media_type(
             "this route takes a JSON body: send `Content-Type: application/json`",
             &accepted,
-        )
-        .with_field("Content-Type"));
+        ));
     };
     let essence = ct
         .to_str()
@@ -64,8 +63,7 @@ fn check_json_content_type(headers: &HeaderMap) -> Result<(), ApiError> {
                 String::from_utf8_lossy(ct.as_bytes())
             ),
             &accepted,
-        )
-        .with_field("Content-Type")),
+        )),
     }
 }
 
@@ -179,12 +177,14 @@ where
 /// The field an error is about: the deserialiser's path, extended by the name serde puts
 /// in backticks for unknown and missing fields (their path is the enclosing object).
 fn field_of(path: &str, message: &str) -> Option<String> {
-    let base = if path == "." || path.is_empty() {
+    // `?` is where serde_path_to_error could not tell (a syntax error mid-object): the
+    // line and column say where instead.
+    let base = if path == "." || path == "?" || path.is_empty() {
         None
     } else {
         Some(path.to_owned())
     };
-    let named = ["unknown field `", "missing field `"]
+    let named = ["unknown field `", "missing field `", "duplicate field `"]
         .iter()
         .find_map(|p| message.strip_prefix(p))
         .and_then(|rest| rest.split('`').next())
@@ -231,6 +231,16 @@ mod tests {
         assert!(e.detail().contains("not valid JSON"), "{}", e.detail());
         let e = parse_json::<Body>(br#"{"width": 3} {}"#).unwrap_err();
         assert!(e.detail().contains("trailing"), "{}", e.detail());
+        // A key given twice names it; a syntax error mid-object names no field.
+        let e = parse_json::<Body>(br#"{"width": 3, "width": 4}"#).unwrap_err();
+        assert_eq!(e.extensions()["field"], "width");
+        let e = parse_json::<Body>(br#"{"width": 3,}"#).unwrap_err();
+        assert!(
+            e.extensions().get("field").is_none(),
+            "{:?}",
+            e.extensions()
+        );
+        assert_eq!(e.extensions()["column"], 13);
         assert_eq!(parse_json::<Body>(br#"{"width": 3}"#).unwrap().width, 3);
     }
 
@@ -243,6 +253,8 @@ mod tests {
     #[test]
     fn query_errors_name_the_parameter() {
         let e = parse_query::<Q>("limit=lots").unwrap_err();
+        assert_eq!(e.extensions()["field"], "limit");
+        let e = parse_query::<Q>("limit=1&limit=2").unwrap_err();
         assert_eq!(e.extensions()["field"], "limit");
         assert_eq!(parse_query::<Q>("limit=7").unwrap().limit, Some(7));
         assert_eq!(parse_query::<Q>("").unwrap().limit, None);

@@ -138,16 +138,7 @@ fn job_error(e: JobError) -> ApiError {
 }
 
 fn binary_error(e: BinaryError) -> ApiError {
-    let offset = match &e {
-        BinaryError::ShortHeader { len, .. } => Some(*len as u64),
-        BinaryError::WrongMagic { .. } => Some(0),
-        BinaryError::UnknownVersion { .. } => Some(4),
-        BinaryError::UnknownFormat { .. } => Some(6),
-        BinaryError::CountOverflow { .. } => Some(8),
-        BinaryError::WrongLength { .. } => Some(8),
-        BinaryError::TooMany { .. } => Some(8),
-        BinaryError::NonFiniteTriangle { offset, .. } => Some(*offset as u64),
-    };
+    let offset = e.byte_offset();
     let err = match &e {
         BinaryError::TooMany { limit, .. } => ApiError::payload_too_large(e.to_string(), *limit),
         _ => ApiError::bad_request(e.to_string()),

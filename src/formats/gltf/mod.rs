@@ -403,6 +403,18 @@ pub enum GltfError {
     },
 }
 
+impl GltfError {
+    /// The byte of the file where the error lies, where the error names one (the GLB
+    /// container's): what a problem document's `byte_offset` names.
+    pub fn byte_offset(&self) -> Option<u64> {
+        match self {
+            GltfError::GlbChunk { offset, .. } => Some(*offset as u64),
+            GltfError::GlbLength { .. } => Some(8),
+            _ => None,
+        }
+    }
+}
+
 /// Loads a glTF scene from the bytes of a `.glb` or `.gltf` file: geometry only (see
 /// [`load_with`]).
 ///
