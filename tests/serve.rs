@@ -470,6 +470,32 @@ fn the_service_end_to_end() {
         br#"{"aov": ["depth"]}"#,
     );
     assert_eq!(bad.status, 400, "{}", String::from_utf8_lossy(&bad.body));
+    // Cameras the job could not make are this request's 400, naming the field.
+    for (body, field) in [
+        (&br#"{"camera": 4294967296}"#[..], "camera"),
+        (br#"{"eye": [0, 0, 1], "target": [0, 0, 1]}"#, "target"),
+        (br#"{"fov": 30}"#, "fov"),
+    ] {
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/render"),
+            &[("Content-Type", "application/json")],
+            body,
+        );
+        assert_eq!(
+            (r.status, r.json()["field"].as_str()),
+            (400, Some(field)),
+            "{}",
+            String::from_utf8_lossy(&r.body)
+        );
+    }
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        b"[16, 16]",
+    );
+    assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
     let job = render(
         r#"{"width": 16, "height": 16, "version": 1, "frames": {"start": 0, "end": 1, "step": 0.5}}"#,
     );

@@ -195,7 +195,19 @@ impl App {
         // Checks the scene, version and time now, so that a bad one is this request's
         // error and not the job's.
         let asked = spec.version;
-        let (geometry, _) = self.geometry(scene, asked, spec.time).await?;
+        let (geometry, cameras) = self.geometry(scene, asked, spec.time).await?;
+        if let crate::render::camera::CameraChoice::Scene(index) = request.camera {
+            if index >= cameras.len() {
+                return Err(AppError::BadParameter {
+                    field: "camera",
+                    detail: crate::render::camera::CameraError::NoSuchCamera {
+                        index,
+                        count: cameras.len(),
+                    }
+                    .to_string(),
+                });
+            }
+        }
         let mut spec = spec;
         let priority = spec.priority;
         let ticket = self.engine().scheduler().admit(priority as u16, false)?;

@@ -181,13 +181,31 @@ impl RenderSpec {
             (None, Some(eye), Some(target)) => {
                 let fov = self.fov.unwrap_or(45.0);
                 let up = self.up.unwrap_or([0.0, 1.0, 0.0]);
+                // Points within f32's range: the scene is f32, and a camera past it sees
+                // nothing (its rays start at infinity).
                 for (field, v) in [("eye", eye), ("target", target), ("up", up)] {
-                    if v.iter().any(|x| !x.is_finite()) {
-                        return Err(bad(field, "components must be finite numbers"));
+                    if v.iter()
+                        .any(|x| !(x.is_finite() && x.abs() <= f32::MAX as f64))
+                    {
+                        return Err(bad(
+                            field,
+                            "components must be finite numbers in f32's range",
+                        ));
                     }
                 }
                 if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
                     return Err(bad("fov", format!("{fov} is not in (0, 180) degrees")));
+                }
+                // The view itself, as the job would make it: a degenerate one is this
+                // request's error, not the job's.
+                use crate::render::camera::{CameraError, ViewCamera};
+                if let Err(e) = ViewCamera::look_at(eye, target, up, fov, 1.0) {
+                    let field = match e {
+                        CameraError::Degenerate("eye equals target") => "target",
+                        CameraError::BadFov(_) => "fov",
+                        _ => "up",
+                    };
+                    return Err(bad(field, e.to_string()));
                 }
                 CameraChoice::LookAt {
                     eye,
@@ -200,6 +218,17 @@ impl RenderSpec {
             (None, None, Some(_)) => return Err(bad("eye", "target needs an eye")),
             (None, None, None) => CameraChoice::Auto,
         };
+        // `up` and `fov` shape a look-at camera only: elsewhere they would be ignored.
+        if !matches!(camera, CameraChoice::LookAt { .. }) {
+            for (field, given) in [("fov", self.fov.is_some()), ("up", self.up.is_some())] {
+                if given {
+                    return Err(bad(
+                        field,
+                        "applies only to a look-at camera (with eye and target)",
+                    ));
+                }
+            }
+        }
         if let Some(t) = self.time {
             if !t.is_finite() {
                 return Err(bad("time", "must be a finite number of seconds"));
@@ -275,6 +304,36 @@ mod tests {
         assert_eq!(r, RenderRequest::default());
         assert_eq!(times, [None]);
         assert_eq!(s.priority, 50);
+    }
+
+    #[test]
+    fn cameras_that_cannot_be_made_are_refused_by_field() {
+        let field = |json: &str| match serde_json::from_str::<RenderSpec>(json).unwrap().resolve(1)
+        {
+            Err(AppError::BadParameter { field, .. }) => field,
+            other => panic!("{json}: {other:?}"),
+        };
+        assert_eq!(field(r#"{"eye":[0,0,1],"target":[0,0,1]}"#), "target");
+        assert_eq!(
+            field(r#"{"eye":[0,0,1],"target":[0,0,0],"up":[0,0,2]}"#),
+            "up"
+        );
+        assert_eq!(
+            field(r#"{"eye":[0,0,1],"target":[0,0,0],"up":[0,0,0]}"#),
+            "up"
+        );
+        assert_eq!(field(r#"{"eye":[1e39,0,1],"target":[0,0,0]}"#), "eye");
+        assert_eq!(
+            field(r#"{"eye":[0,0,1],"target":[0,0,0],"fov":180}"#),
+            "fov"
+        );
+        assert_eq!(field(r#"{"fov":30}"#), "fov");
+        assert_eq!(field(r#"{"camera":0,"up":[0,1,0]}"#), "up");
+        let ok = r#"{"eye":[0,0,1],"target":[0,0,0],"up":[0,1,0],"fov":30}"#;
+        assert!(serde_json::from_str::<RenderSpec>(ok)
+            .unwrap()
+            .resolve(1)
+            .is_ok());
     }
 
     #[test]

@@ -85,7 +85,16 @@ fn bytes_rejection(r: BytesRejection) -> ApiError {
 }
 
 /// Deserialises a JSON document into `T`, naming the field and place of the first error.
+/// Every body this API takes is an object: serde would also fill a struct from an array,
+/// field by field in order, which no schema here allows.
 pub fn parse_json<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
+    if let Some(&first) = bytes.iter().find(|b| !b.is_ascii_whitespace()) {
+        if first != b'{' {
+            return Err(ApiError::bad_request(
+                "the JSON body must be an object (`{ … }`)",
+            ));
+        }
+    }
     let de = &mut serde_json::Deserializer::from_slice(bytes);
     let value: T = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
         let field = field_of(&e.path().to_string(), &e.inner().to_string());
@@ -234,6 +243,8 @@ mod tests {
         // A key given twice names it; a syntax error mid-object names no field.
         let e = parse_json::<Body>(br#"{"width": 3, "width": 4}"#).unwrap_err();
         assert_eq!(e.extensions()["field"], "width");
+        let e = parse_json::<Body>(b" [3, null]").unwrap_err();
+        assert!(e.detail().contains("must be an object"), "{}", e.detail());
         let e = parse_json::<Body>(br#"{"width": 3,}"#).unwrap_err();
         assert!(
             e.extensions().get("field").is_none(),
