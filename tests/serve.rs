@@ -140,6 +140,15 @@ fn the_service_end_to_end() {
     let list = s.req("GET", "/v1/scenes?limit=1", &[], &[]).json();
     assert_eq!(list["scenes"].as_array().unwrap().len(), 1);
     assert!(list["next_page_token"].is_string());
+    // An empty token is the first page (AIP-158), as a client loop sends it.
+    let again = s.req("GET", "/v1/scenes?limit=1&page_token=", &[], &[]);
+    assert_eq!(
+        again.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&again.body)
+    );
+    assert_eq!(again.json()["scenes"], list["scenes"]);
 
     // Traces: every query and hit format equals `rayd trace` on the same file.
     let min: Vec<f32> = serde_json::from_value(scene["bounds"]["min"].clone()).unwrap();

@@ -153,7 +153,8 @@ impl Store {
     ) -> Result<(Vec<JobRecord>, Option<String>)> {
         let n = page_size(limit);
         let mut conn = self.inner.reader.acquire().await?;
-        let rows = match page_token {
+        // AIP-158: an empty token is the first page, as an absent one.
+        let rows = match page_token.filter(|t| !t.is_empty()) {
             None => {
                 sqlx::query(concat!(
                     "SELECT ",

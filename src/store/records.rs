@@ -311,10 +311,18 @@ pub(crate) fn decode_page_token(kind: ListKind, token: &str) -> Result<(Millis, 
     let (Some(tag), Some(t), Some(id)) = (parts.next(), parts.next(), parts.next()) else {
         return Err(bad());
     };
-    if tag != kind.tag() || id.is_empty() {
+    // The id is one of the list's own: a job id, or a scene's content hash.
+    let id_ok = match kind {
+        ListKind::Jobs => check_job_id(id).is_ok(),
+        ListKind::Scenes => super::blob::BlobId::parse(id).is_some(),
+    };
+    if tag != kind.tag() || !id_ok {
         return Err(bad());
     }
     let t: Millis = t.parse().map_err(|_| bad())?;
+    if t < 0 {
+        return Err(bad());
+    }
     Ok((t, id.to_string()))
 }
 

@@ -134,7 +134,8 @@ impl Store {
         page_token: Option<&str>,
     ) -> Result<(Vec<SceneRecord>, Option<String>)> {
         let n = page_size(limit);
-        let rows = match page_token {
+        // AIP-158: an empty token is the first page, as an absent one.
+        let rows = match page_token.filter(|t| !t.is_empty()) {
             None => {
                 sqlx::query(concat!(
                     "SELECT ",

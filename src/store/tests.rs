@@ -406,12 +406,26 @@ async fn scenes_are_created_once_per_content_and_listed_in_pages() {
     let (all, next) = store.list_scenes(0, None).await.unwrap();
     assert_eq!((all.len(), next), (7, None));
 
-    for bad in ["zz", "00", "7331", &"ab".repeat(300)] {
+    // Hex of `s1:1:a` and of `s1:1:' OR 1=1 --`: well-formed tokens whose id is no
+    // scene id.
+    let hex = |t: &str| t.bytes().map(|b| format!("{b:02x}")).collect::<String>();
+    let forged = [
+        hex("s1:1:a"),
+        hex("s1:1:' OR 1=1 --"),
+        hex(&format!("s1:-5:{}", ids[0])),
+    ];
+    for bad in ["zz", "00", "7331", &"ab".repeat(300)]
+        .into_iter()
+        .chain(forged.iter().map(String::as_str))
+    {
         assert!(matches!(
             store.list_scenes(3, Some(bad)).await,
             Err(StoreError::BadPageToken)
         ));
     }
+    // AIP-158: an empty token is the first page.
+    let (first, _) = store.list_scenes(3, Some("")).await.unwrap();
+    assert_eq!(first[0].id, ids[0]);
     // A job list's token is not a scene list's.
     let j = store.create_job(render_job(&s)).await.unwrap().0;
     store.create_job(render_job(&s)).await.unwrap();
