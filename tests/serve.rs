@@ -909,6 +909,27 @@ fn async_traces_answer_as_sync_ones_and_refuse_bad_bodies_up_front() {
         result.body == sync.body,
         "the job's hits differ from the sync trace's"
     );
+    // Idempotency-Key: a retry finds the first job; the same key with other rays is 409.
+    let key = ("Idempotency-Key", "trace-once");
+    let first = s.req("POST", &path, &[octet, prefer, key], &body);
+    assert_eq!(
+        first.status,
+        202,
+        "{}",
+        String::from_utf8_lossy(&first.body)
+    );
+    let retry = s.req("POST", &path, &[octet, prefer, key], &body);
+    assert_eq!(retry.status, 202);
+    assert_eq!(retry.json()["id"], first.json()["id"]);
+    let other = s.req("POST", &path, &[octet, prefer, key], &rays(999));
+    assert_eq!(
+        other.status,
+        409,
+        "{}",
+        String::from_utf8_lossy(&other.body)
+    );
+    let job = first.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
 
     let jobs_before = s.req("GET", "/v1/jobs", &[], &[]).json()["jobs"]
         .as_array()

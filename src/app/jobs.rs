@@ -256,12 +256,15 @@ impl App {
     }
 
     /// Submits an asynchronous trace (`Prefer: respond-async`): the rays are stored and
-    /// the job's result is the HIT1 body.
+    /// the job's result is the HIT1 body. With `idempotency_key`, a retry of the same
+    /// request finds the first job, as a render's does (the rays are part of the request,
+    /// by their hash).
     pub async fn submit_trace(
         &self,
         scene: &str,
         params: TraceParams,
         rays_body: bytes::Bytes,
+        idempotency_key: Option<String>,
     ) -> Result<JobView, AppError> {
         let asked = params.version;
         let (geometry, _) = self.geometry(scene, asked, params.time).await?;
@@ -284,7 +287,7 @@ impl App {
                     version: i64::from(version),
                     request: serde_json::to_string(&request).expect("serialises"),
                     priority: 50,
-                    idempotency_key: None,
+                    idempotency_key: idempotency_key.clone(),
                     input_blob: Some(rays_blob.clone()),
                 })
                 .await;
@@ -296,10 +299,13 @@ impl App {
                     tries += 1;
                     version = self.geometry(scene, None, params.time).await?.0.key.version;
                 }
-                r => break (r?.0, request),
+                r => break (r?, request),
             }
         };
-        self.start(record.clone(), Work::Trace(request), ticket);
+        let (record, created) = record;
+        if created {
+            self.start(record.clone(), Work::Trace(request), ticket);
+        }
         Ok(JobView::from_record(&record))
     }
 

@@ -354,11 +354,14 @@ async fn trace(
     media_type(&headers, &[OCTET])?;
     app.scene(&id).await?;
     if prefers_async(&headers) {
+        let key = idempotency_key(&headers)?;
         let body = read_body_limited(body, state.config.max_body, &state.bodies).await?;
         // The checks a synchronous trace makes as its body arrives, before anything is
         // stored or queued: a batch over --max-rays is 413 here too, not a failed job.
         ray_count(body.bytes(), state.config.max_rays as usize).map_err(binary_error)?;
-        let view = app.submit_trace(&id, params, body.bytes().clone()).await?;
+        let view = app
+            .submit_trace(&id, params, body.bytes().clone(), key)
+            .await?;
         let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
         resp.headers_mut()
             .insert(header::LOCATION, location(format!("/v1/jobs/{}", view.id)));
@@ -421,6 +424,21 @@ async fn trace(
     Ok(resp)
 }
 
+/// The request's `Idempotency-Key`, checked: 1 to 255 visible ASCII characters.
+fn idempotency_key(headers: &HeaderMap) -> Result<Option<String>, ApiError> {
+    let Some(v) = headers.get("idempotency-key") else {
+        return Ok(None);
+    };
+    v.to_str()
+        .ok()
+        .filter(|s| !s.is_empty() && s.len() <= 255)
+        .map(|s| Some(s.to_string()))
+        .ok_or_else(|| {
+            ApiError::bad_request("Idempotency-Key must be 1 to 255 visible ASCII characters")
+                .with_field("Idempotency-Key")
+        })
+}
+
 /// `POST /v1/scenes/{id}/render`.
 async fn render(
     Extension(app): Extension<App>,
@@ -428,21 +446,7 @@ async fn render(
     headers: HeaderMap,
     ApiJson(spec): ApiJson<RenderSpec>,
 ) -> Result<Response, ApiError> {
-    let key = match headers.get("idempotency-key") {
-        None => None,
-        Some(v) => Some(
-            v.to_str()
-                .ok()
-                .filter(|s| !s.is_empty() && s.len() <= 255)
-                .ok_or_else(|| {
-                    ApiError::bad_request(
-                        "Idempotency-Key must be 1 to 255 visible ASCII characters",
-                    )
-                    .with_field("Idempotency-Key")
-                })?
-                .to_string(),
-        ),
-    };
+    let key = idempotency_key(&headers)?;
     let (view, _) = app.submit_render(&id, spec, key).await?;
     let mut resp = (StatusCode::ACCEPTED, Json(&view)).into_response();
     resp.headers_mut()
