@@ -239,6 +239,23 @@ fn the_service_end_to_end() {
             "{path}"
         );
     }
+    // A body that is not what its Content-Type says is refused at byte 0.
+    let glb_bytes = std::fs::read(scenes().join("Box.glb")).unwrap();
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf+json")],
+        &glb_bytes,
+    );
+    assert_eq!((r.status, r.json()["byte_offset"].as_u64()), (400, Some(0)));
+    // A geometry update takes no query parameters.
+    let r = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry?time=1"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        b"",
+    );
+    assert_eq!((r.status, r.json()["field"].as_str()), (400, Some("time")));
     // A GLB whose JSON chunk runs past the end names the chunk's byte.
     let mut glb = std::fs::read(scenes().join("Box.glb")).unwrap();
     glb[12..16].copy_from_slice(&u32::MAX.to_le_bytes());
@@ -388,6 +405,15 @@ fn the_service_end_to_end() {
         "GET",
         &format!("/v1/jobs/{job}/result"),
         &[("If-None-Match", &etag)],
+        &[],
+    );
+    assert_eq!(cached.status, 304);
+    // If-None-Match compares weakly (RFC 9110): a weak validator of the same tag matches.
+    let weak = format!("W/{etag}");
+    let cached = s.req(
+        "GET",
+        &format!("/v1/jobs/{job}/result"),
+        &[("If-None-Match", &weak)],
         &[],
     );
     assert_eq!(cached.status, 304);

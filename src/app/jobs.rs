@@ -317,6 +317,12 @@ impl App {
             self.store().delete_job(id).await?;
             return Ok(None);
         }
+        // The store hears of progress every 500 ms; the live view is fresher. Recorded
+        // first, so that a cancelled job's progress does not go back.
+        let fresher = self.live(id).map(|v| v.borrow().progress);
+        if let Some(p) = fresher {
+            let _ = self.store().set_progress(id, p).await;
+        }
         let cancelled = self.store().cancel_job(id).await?;
         let live = self
             .inner

@@ -159,6 +159,21 @@ fn parse_with(kind: UploadKind, bytes: &[u8], parts: Parts, max: u64) -> Result<
     }
 }
 
+/// Refuses a glTF upload that is not what its `Content-Type` says (the record keeps the
+/// type). Only uploads: a scene stored before this check reloads as it always did.
+fn check_kind(kind: UploadKind, bytes: &[u8]) -> Result<(), AppError> {
+    let glb = bytes.starts_with(b"glTF");
+    let declared = match kind {
+        UploadKind::Glb if !glb => "model/gltf-binary but is not a GLB (no glTF magic at byte 0)",
+        UploadKind::Gltf if glb => "model/gltf+json but is a GLB (it starts with the glTF magic)",
+        _ => return Ok(()),
+    };
+    Err(AppError::BadUpload {
+        detail: format!("the body is declared {declared}"),
+        byte_offset: Some(0),
+    })
+}
+
 /// The refusal of a TRI1 body over `--max-triangles`, worded as the glTF loader's.
 fn too_many_triangles(count: u64, max: u64) -> String {
     format!(
@@ -340,6 +355,7 @@ impl App {
         if let Some(name) = &name {
             check_name(name)?;
         }
+        check_kind(kind, &bytes)?;
         let id = BlobId::of(&bytes);
         if let Ok(existing) = self.store().get_scene(id.as_str()).await {
             // Uploading the bytes again is also how a failed thumbnail is tried again.

@@ -283,10 +283,16 @@ async fn delete_scene(
 }
 
 /// `PUT /v1/scenes/{id}/geometry`.
+/// A route that takes no query parameters: any is 400, naming it, as on every route.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NoQuery {}
+
 async fn update_geometry(
     State(state): State<AppState>,
     Extension(app): Extension<App>,
     ApiPath(id): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
@@ -572,7 +578,12 @@ async fn job_result(
     if headers
         .get(header::IF_NONE_MATCH)
         .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.split(',').any(|t| t.trim() == etag || t.trim() == "*"))
+        // Weak comparison (RFC 9110 §13.1.2): `W/"x"` matches `"x"`.
+        .is_some_and(|v| {
+            v.split(',')
+                .map(str::trim)
+                .any(|t| t == "*" || t.strip_prefix("W/").unwrap_or(t) == etag)
+        })
     {
         let mut resp = StatusCode::NOT_MODIFIED.into_response();
         resp.headers_mut()
