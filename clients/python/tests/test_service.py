@@ -115,6 +115,10 @@ def test_trace_async_gives_the_same_hits_as_a_synchronous_trace(fox, fox_rays):
     hits = job.result()
     assert hits.body == fox.trace(origins, directions, hit="t_prim").body
     assert set(hits) == {"t", "prim"}
+    # A retried submission with the same key is the same job.
+    first = fox.trace_async(origins, directions, hit="t_prim", idempotency_key="fox-once")
+    again = fox.trace_async(origins, directions, hit="t_prim", idempotency_key="fox-once")
+    assert again.id == first.id
 
 
 # -- cast_rays: Open3D's answer -------------------------------------------------------------

@@ -448,9 +448,11 @@ class Scene:
             server_timing=_server_timing(resp.headers.get("Server-Timing")),
         )
 
-    def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, **kw) -> Job:
+    def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, *,
+                    idempotency_key: str | None = None, **kw) -> Job:
         """:meth:`trace` as a job (``Prefer: respond-async``); ``Job.result()`` gives the
-        :class:`Hits`."""
+        :class:`Hits`. With ``idempotency_key``, a retry of the same rays finds the first
+        job (the same key with other rays is a 409)."""
         params = self._trace_params(
             kw.pop("query", "closest"),
             kw.pop("hit", "t_prim_uv"),
@@ -460,9 +462,11 @@ class Scene:
         if kw:
             raise TypeError(f"unknown trace parameters: {', '.join(kw)}")
         body = formats.encode_rays(origins, directions, tmin, tmax)
+        headers = {"Content-Type": OCTET, "Prefer": "respond-async"}
+        if idempotency_key:
+            headers["Idempotency-Key"] = idempotency_key
         info = self.client._json(
-            "POST", f"{self._path}/trace", params=params, data=body,
-            headers={"Content-Type": OCTET, "Prefer": "respond-async"},
+            "POST", f"{self._path}/trace", params=params, data=body, headers=headers,
         )
         return Job(self.client, info, expect=(HIT_FORMATS[params["hit"]],
                                               (len(body) - 16) // 32))
