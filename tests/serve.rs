@@ -498,12 +498,7 @@ fn the_service_end_to_end() {
     assert!(after.get("rayd_cache_hits_total") >= 1.0);
     assert!(after.get("rayd_cache_misses_total") >= 1.0);
     assert!(after.get("rayd_cache_bytes") > 0.0);
-    let bad = s.req(
-        "POST",
-        &format!("/v1/scenes/{id}/render"),
-        &[("Content-Type", "application/json")],
-        br#"{"aov": ["depth"]}"#,
-    );
+    let bad = s.post_render(&id, br#"{"aov": ["depth"]}"#);
     assert_eq!(bad.status, 400, "{}", String::from_utf8_lossy(&bad.body));
     // Cameras the job could not make are this request's 400, naming the field.
     for (body, field) in [
@@ -511,12 +506,7 @@ fn the_service_end_to_end() {
         (br#"{"eye": [0, 0, 1], "target": [0, 0, 1]}"#, "target"),
         (br#"{"fov": 30}"#, "fov"),
     ] {
-        let r = s.req(
-            "POST",
-            &format!("/v1/scenes/{id}/render"),
-            &[("Content-Type", "application/json")],
-            body,
-        );
+        let r = s.post_render(&id, body);
         assert_eq!(
             (r.status, r.json()["field"].as_str()),
             (400, Some(field)),
@@ -524,12 +514,7 @@ fn the_service_end_to_end() {
             String::from_utf8_lossy(&r.body)
         );
     }
-    let r = s.req(
-        "POST",
-        &format!("/v1/scenes/{id}/render"),
-        &[("Content-Type", "application/json")],
-        b"[16, 16]",
-    );
+    let r = s.post_render(&id, b"[16, 16]");
     assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
     let job = render(
         r#"{"width": 16, "height": 16, "version": 1, "frames": {"start": 0, "end": 1, "step": 0.5}}"#,

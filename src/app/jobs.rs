@@ -324,12 +324,7 @@ impl App {
             let _ = self.store().set_progress(id, p).await;
         }
         let cancelled = self.store().cancel_job(id).await?;
-        let live = self
-            .inner
-            .live
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .remove(id);
+        let live = self.take_live(id);
         let view = JobView::from_record(&cancelled);
         if let Some(l) = live {
             l.cancel.cancel();
@@ -575,20 +570,22 @@ impl App {
     /// Stops jobs `ids`, deleted with their scene: each ends within a wave, as a
     /// cancelled job does, with no record left to write its end to.
     pub(super) fn stop_deleted(&self, ids: &[String]) {
-        let mut live = self.inner.live.lock().unwrap_or_else(|e| e.into_inner());
-        for id in ids {
-            if let Some(l) = live.remove(id) {
-                l.cancel.cancel();
-            }
+        for l in ids.iter().filter_map(|id| self.take_live(id)) {
+            l.cancel.cancel();
         }
     }
 
-    fn forget_live(&self, id: &str) {
+    /// Job `id`'s live entry, taken out of the table.
+    fn take_live(&self, id: &str) -> Option<Live> {
         self.inner
             .live
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .remove(id);
+            .remove(id)
+    }
+
+    fn forget_live(&self, id: &str) {
+        self.take_live(id);
     }
 
     fn run_render(

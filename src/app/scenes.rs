@@ -636,14 +636,6 @@ impl App {
         Ok(self.engine().scheduler().has_room()?)
     }
 
-    /// Admits a synchronous trace to the queue.
-    fn admit_trace(&self) -> Result<sched::Ticket, AppError> {
-        Ok(self
-            .engine()
-            .scheduler()
-            .admit(sched::SYNC_PRIORITY, true)?)
-    }
-
     /// Notes that a trace body of `bytes` (after its first piece) took `seconds` to arrive,
     /// for `auto`'s estimate of the next one's arrival.
     pub fn note_upload(&self, bytes: u64, seconds: f64) {
@@ -675,7 +667,7 @@ impl App {
                 engine,
             });
         };
-        let ticket = self.admit_trace()?;
+        let ticket = admit_sync_trace(&engine)?;
         let (arrive, arrivals) = std::sync::mpsc::channel();
         let done = on_trace_thread(move || {
             let control = engine.control(Default::default(), None, ticket);
@@ -683,6 +675,12 @@ impl App {
         })?;
         Ok(TraceIntake::Streamed { arrive, done })
     }
+}
+
+/// A synchronous trace's place in the queue, ahead of every job, taken when it can start
+/// (see [`App::trace_has_room`]).
+fn admit_sync_trace(engine: &crate::jobs::Engine) -> Result<sched::Ticket, AppError> {
+    Ok(engine.scheduler().admit(sched::SYNC_PRIORITY, true)?)
 }
 
 /// What a synchronous trace answers, when its thread is done.
@@ -765,7 +763,7 @@ impl TraceIntake {
                 engine,
             } => {
                 // Its place in the queue, now that the whole batch is here.
-                let ticket = engine.scheduler().admit(sched::SYNC_PRIORITY, true)?;
+                let ticket = admit_sync_trace(&engine)?;
                 on_trace_thread(move || {
                     let invalid = trace::validate_read(&mut rays, request.invalid)?;
                     let control = engine.control(Default::default(), None, ticket);

@@ -198,10 +198,10 @@ impl RenderSpec {
                 }
                 // The view itself, as the job would make it: a degenerate one is this
                 // request's error, not the job's.
-                use crate::render::camera::{CameraError, ViewCamera};
+                use crate::render::camera::{CameraError, ViewCamera, EYE_AT_TARGET};
                 if let Err(e) = ViewCamera::look_at(eye, target, up, fov, 1.0) {
                     let field = match e {
-                        CameraError::Degenerate("eye equals target") => "target",
+                        CameraError::Degenerate(EYE_AT_TARGET) => "target",
                         CameraError::BadFov(_) => "fov",
                         _ => "up",
                     };

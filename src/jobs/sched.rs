@@ -79,12 +79,7 @@ impl Scheduler {
     /// request a client waits for, which shortens running jobs' waves for a while.
     pub fn admit(self: &Arc<Self>, priority: u16, interactive: bool) -> Result<Ticket, JobError> {
         let mut s = self.lock();
-        if s.shutting_down {
-            return Err(JobError::ShuttingDown);
-        }
-        if s.queued >= self.max_queued {
-            return Err(JobError::QueueFull(s.queued));
-        }
+        self.room(&s)?;
         s.queued += 1;
         s.next_seq += 1;
         if interactive {
@@ -101,7 +96,11 @@ impl Scheduler {
     /// request whose place is taken only after its body has arrived is refused at once
     /// when the queue is already full or the service is shutting down.
     pub fn has_room(&self) -> Result<(), JobError> {
-        let s = self.lock();
+        self.room(&self.lock())
+    }
+
+    /// Why a job could not be admitted in state `s`, if it could not.
+    fn room(&self, s: &State) -> Result<(), JobError> {
         if s.shutting_down {
             return Err(JobError::ShuttingDown);
         }

@@ -63,6 +63,10 @@ pub enum CameraError {
     BadFov(f64),
 }
 
+/// [`CameraError::Degenerate`]'s reason when the eye is the target: a caller that names
+/// the input at fault (the service's `field`) tells it from the others by this.
+pub const EYE_AT_TARGET: &str = "eye equals target";
+
 fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -104,7 +108,7 @@ impl ViewCamera {
         if !eye.iter().chain(&target).chain(&up).all(|x| x.is_finite()) {
             return Err(CameraError::Degenerate("eye, target and up must be finite"));
         }
-        let forward = unit(sub(target, eye)).ok_or(CameraError::Degenerate("eye equals target"))?;
+        let forward = unit(sub(target, eye)).ok_or(CameraError::Degenerate(EYE_AT_TARGET))?;
         let right = unit(cross(forward, up)).ok_or(CameraError::Degenerate(
             "up is parallel to the view direction",
         ))?;

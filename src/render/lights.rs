@@ -85,7 +85,7 @@ impl LightSampler {
     pub fn new(triangles: &[Triangle], surfaces: &Surfaces, sky: Vec3, area: bool) -> LightSampler {
         // Each triangle's power on the pool (a textured emitter reads 16 texels), then
         // the totals in id order, so the table is the same on any number of threads.
-        let mut emitters: Vec<Emitter> = if area {
+        let emitters: Vec<Emitter> = if area {
             triangles
                 .par_iter()
                 .enumerate()
@@ -109,9 +109,9 @@ impl LightSampler {
         let total: f64 = emitters.iter().map(|e| e.pmf as f64).sum();
         let mut cdf = Vec::with_capacity(emitters.len());
         let mut run = 0.0f64;
-        for e in &mut emitters {
+        // (`pmf` holds each emitter's power until the table's steps replace it below.)
+        for e in &emitters {
             run += e.pmf as f64;
-            e.pmf = (e.pmf as f64 / total) as f32;
             cdf.push((run / total) as f32);
         }
         if let Some(last) = cdf.last_mut() {
@@ -121,7 +121,7 @@ impl LightSampler {
         // which textured weights make possible) can never be picked: it leaves the table,
         // so that `triangle_pdf` answers 0 for it as well and BRDF sampling alone finds it.
         let mut prev = 0.0f32;
-        let (emitters, cdf): (Vec<Emitter>, Vec<f32>) = emitters
+        let (mut emitters, cdf): (Vec<Emitter>, Vec<f32>) = emitters
             .into_iter()
             .zip(cdf)
             .filter(|&(_, c)| {
@@ -133,7 +133,6 @@ impl LightSampler {
         // Each emitter's density is the step of the table that picks it, which rounding
         // makes differ from its share of the power by up to a few percent for faint ones:
         // the estimate stays unbiased only if the two agree.
-        let mut emitters = emitters;
         let mut prev = 0.0f32;
         for (e, &c) in emitters.iter_mut().zip(&cdf) {
             e.pmf = c - prev;

@@ -554,11 +554,7 @@ impl TextureSet {
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
         let mut used = vec![[false; 2]; scene.textures.len()];
         for m in &scene.materials {
-            let all = slots(m)
-                .into_iter()
-                .zip(SLOT_IS_COLOUR)
-                .chain(specular_slots(m));
-            for (r, colour) in all {
+            for (r, colour) in read_apart(m, false) {
                 if let Some(u) = r.and_then(|r| used.get_mut(r.texture)) {
                     u[colour as usize] = true;
                 }
@@ -642,15 +638,9 @@ impl TextureSet {
             })
             .collect::<Vec<_>>();
         // A pyramid that only bundled materials read lives on in their bundles alone.
-        // The specular textures are never bundled: every material reads them apart.
         let mut needed = vec![[false; 2]; textures.len()];
         for (m, b) in scene.materials.iter().zip(&bundles) {
-            let apart = if b.is_some() { [None; SLOTS] } else { slots(m) };
-            let all = apart
-                .into_iter()
-                .zip(SLOT_IS_COLOUR)
-                .chain(specular_slots(m));
-            for (r, colour) in all {
+            for (r, colour) in read_apart(m, b.is_some()) {
                 if let Some(n) = r.and_then(|r| needed.get_mut(r.texture)) {
                     n[colour as usize] = true;
                 }
@@ -755,6 +745,19 @@ pub fn specular_slots(m: &crate::scene::Material) -> [(Option<TextureRef>, bool)
         (m.specular.texture, false),
         (m.specular.color_texture, true),
     ]
+}
+
+/// The texture references material `m` reads from pyramids of their own, each with
+/// whether it holds colour: its four slots unless it is `bundled`, and its specular
+/// textures always (they are never bundled).
+fn read_apart(
+    m: &crate::scene::Material,
+    bundled: bool,
+) -> impl Iterator<Item = (Option<TextureRef>, bool)> {
+    let four = if bundled { [None; SLOTS] } else { slots(m) };
+    four.into_iter()
+        .zip(SLOT_IS_COLOUR)
+        .chain(specular_slots(m))
 }
 
 /// The bundle of texture references `refs` (slot order) from `textures`: only where every
@@ -905,9 +908,31 @@ mod tests {
         png
     }
 
+    /// A scene of `n` textures, texture `i` the PNG `png(i * 50)` with the default
+    /// sampler, and `materials`.
+    fn textured_scene(n: u8, materials: Vec<crate::scene::Material>) -> Scene {
+        use crate::scene::{Image, Texture};
+        Scene {
+            images: (0..n)
+                .map(|i| Image {
+                    mime_type: "image/png".into(),
+                    bytes: png(i * 50).into(),
+                })
+                .collect(),
+            textures: (0..n as usize)
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials,
+            ..Scene::default()
+        }
+    }
+
     #[test]
     fn materials_share_a_bundle_only_when_they_read_alike() {
-        use crate::scene::{Image, Material, Texture, TextureTransform};
+        use crate::scene::{Material, TextureTransform};
         let r = |texture, tex_coord, transform| {
             Some(TextureRef {
                 texture,
@@ -926,26 +951,14 @@ mod tests {
             rotation: 0.0,
             scale: [4.0, 4.0],
         };
-        let scene = Scene {
-            images: (0..3)
-                .map(|i| Image {
-                    mime_type: "image/png".into(),
-                    bytes: png(i * 50).into(),
-                })
-                .collect(),
-            textures: (0..3)
-                .map(|image| Texture {
-                    image,
-                    sampler: Default::default(),
-                })
-                .collect(),
-            materials: vec![
+        let scene = textured_scene(
+            3,
+            vec![
                 material(0, None),
                 material(1, None),
                 material(0, Some(tiled)),
             ],
-            ..Scene::default()
-        };
+        );
         let set = TextureSet::of(&scene).unwrap();
         assert!(set.bundle(0).is_some());
         // The same textures through another coordinate set, or transformed: read apart,
@@ -969,7 +982,7 @@ mod tests {
     /// (the colour texture as sRGB).
     #[test]
     fn specular_textures_are_decoded_beside_bundles() {
-        use crate::scene::{Image, Material, Specular, Texture};
+        use crate::scene::{Material, Specular};
         let r = |texture| {
             Some(TextureRef {
                 texture,
@@ -977,20 +990,9 @@ mod tests {
                 transform: None,
             })
         };
-        let scene = Scene {
-            images: (0..4)
-                .map(|i| Image {
-                    mime_type: "image/png".into(),
-                    bytes: png(i * 50).into(),
-                })
-                .collect(),
-            textures: (0..4)
-                .map(|image| Texture {
-                    image,
-                    sampler: Default::default(),
-                })
-                .collect(),
-            materials: vec![Material {
+        let scene = textured_scene(
+            4,
+            vec![Material {
                 base_color_texture: r(0),
                 metallic_roughness_texture: r(1),
                 normal_texture: r(2),
@@ -1001,8 +1003,7 @@ mod tests {
                 },
                 ..Material::default()
             }],
-            ..Scene::default()
-        };
+        );
         let set = TextureSet::of(&scene).unwrap();
         assert!(set.bundle(0).is_some());
         let at = Lookup {

@@ -144,35 +144,15 @@ where
 
 /// The first parameter of `query` whose name or value is not UTF-8 once percent-decoded
 /// (`form_urlencoded` would replace such bytes with U+FFFD, and a name would be stored
-/// changed): its name, as far as it decodes.
+/// changed): its name, as far as it decodes. (`+` stands for a space, which changes no
+/// byte's validity, so only the key it names is spelled with it.)
 fn non_utf8_parameter(query: &str) -> Option<String> {
-    fn decode(part: &str) -> Vec<u8> {
-        let b = part.as_bytes();
-        let mut out = Vec::with_capacity(b.len());
-        let mut i = 0;
-        while i < b.len() {
-            let hex = |c: u8| (c as char).to_digit(16);
-            match b[i] {
-                b'%' if i + 2 < b.len() => match (hex(b[i + 1]), hex(b[i + 2])) {
-                    (Some(h), Some(l)) => {
-                        out.push((h * 16 + l) as u8);
-                        i += 3;
-                        continue;
-                    }
-                    _ => out.push(b'%'),
-                },
-                b'+' => out.push(b' '),
-                c => out.push(c),
-            }
-            i += 1;
-        }
-        out
-    }
+    use percent_encoding::percent_decode_str;
     query.split('&').filter(|p| !p.is_empty()).find_map(|pair| {
         let (k, v) = pair.split_once('=').unwrap_or((pair, ""));
-        let (key, value) = (decode(k), decode(v));
-        (std::str::from_utf8(&key).is_err() || std::str::from_utf8(&value).is_err())
-            .then(|| String::from_utf8_lossy(&key).into_owned())
+        let key = percent_decode_str(k);
+        (key.clone().decode_utf8().is_err() || percent_decode_str(v).decode_utf8().is_err())
+            .then(|| key.decode_utf8_lossy().replace('+', " "))
     })
 }
 

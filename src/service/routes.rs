@@ -282,12 +282,13 @@ async fn delete_scene(
     Ok(StatusCode::NO_CONTENT.into_response())
 }
 
-/// `PUT /v1/scenes/{id}/geometry`.
-/// A route that takes no query parameters: any is 400, naming it, as on every route.
+/// The query of a route that takes no parameters: any is 400, naming it, as on every
+/// route.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct NoQuery {}
 
+/// `PUT /v1/scenes/{id}/geometry`.
 async fn update_geometry(
     State(state): State<AppState>,
     Extension(app): Extension<App>,

@@ -89,14 +89,19 @@ impl Server {
         r.json()
     }
 
-    /// POSTs render options `body` for scene `scene`: the new job's id (202 asserted).
-    pub fn submit_render(&self, scene: &str, body: &[u8]) -> String {
-        let r = self.req(
+    /// POSTs render options `body` (JSON) for scene `scene`: the answer, whatever it is.
+    pub fn post_render(&self, scene: &str, body: &[u8]) -> Resp {
+        self.req(
             "POST",
             &format!("/v1/scenes/{scene}/render"),
             &[("Content-Type", "application/json")],
             body,
-        );
+        )
+    }
+
+    /// POSTs render options `body` for scene `scene`: the new job's id (202 asserted).
+    pub fn submit_render(&self, scene: &str, body: &[u8]) -> String {
+        let r = self.post_render(scene, body);
         assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
         r.json()["id"].as_str().unwrap().to_string()
     }
