@@ -498,18 +498,24 @@ fn the_service_end_to_end() {
     assert!(after.get("rayd_cache_hits_total") >= 1.0);
     assert!(after.get("rayd_cache_misses_total") >= 1.0);
     assert!(after.get("rayd_cache_bytes") > 0.0);
-    let bad = s.post_render(&id, br#"{"aov": ["depth"]}"#);
-    assert_eq!(bad.status, 400, "{}", String::from_utf8_lossy(&bad.body));
-    // Cameras the job could not make are this request's 400, naming the field.
-    for (body, field) in [
-        (&br#"{"camera": 4294967296}"#[..], "camera"),
-        (br#"{"eye": [0, 0, 1], "target": [0, 0, 1]}"#, "target"),
-        (br#"{"fov": 30}"#, "fov"),
+    // A body that parses but asks what the job cannot do is 422, naming the field, whether
+    // a schema's bound, another field, the scene or a configured limit says no; a body
+    // that is not a render request at all (a type, an unknown field, an array) is 400.
+    for (body, status, field) in [
+        (&br#"{"aov": ["depth"]}"#[..], 422, "aov"),
+        (br#"{"camera": 4294967296}"#, 422, "camera"),
+        (br#"{"eye": [0, 0, 1], "target": [0, 0, 1]}"#, 422, "target"),
+        (br#"{"fov": 30}"#, 422, "fov"),
+        (br#"{"priority": 101}"#, 422, "priority"),
+        (br#"{"width": 0}"#, 422, "width"),
+        (br#"{"bounces": 1000000}"#, 422, "bounces"),
+        (br#"{"width": -1}"#, 400, "width"),
+        (br#"{"widht": 16}"#, 400, "widht"),
     ] {
         let r = s.post_render(&id, body);
         assert_eq!(
             (r.status, r.json()["field"].as_str()),
-            (400, Some(field)),
+            (status, Some(field)),
             "{}",
             String::from_utf8_lossy(&r.body)
         );
@@ -565,9 +571,28 @@ fn the_service_end_to_end() {
         &write_rays(&rays[..100]),
     );
     assert_eq!(small.status, 200);
+    // Progress seen before the cancel is never taken back by it: the store hears of
+    // progress every 500 ms, a GET shows the live job's, and the cancel records that first.
+    let progress = || {
+        s.req("GET", &format!("/v1/jobs/{long}"), &[], &[]).json()["progress"]
+            .as_f64()
+            .unwrap()
+    };
+    // Cancelled just after a step, which the store has most likely not heard of yet.
+    let first = progress();
+    let seen = loop {
+        let p = progress();
+        if p > first {
+            break p;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(60));
+        std::thread::sleep(Duration::from_millis(2));
+    };
     let c = s.req("DELETE", &format!("/v1/jobs/{long}"), &[], &[]);
     assert_eq!(c.status, 200);
     assert_eq!(c.json()["state"], "cancelled");
+    let kept = c.json()["progress"].as_f64().unwrap();
+    assert!(kept >= seen && kept < 1.0, "seen {seen}, kept {kept}");
     let r = s.req("GET", &format!("/v1/jobs/{long}/result"), &[], &[]);
     assert_eq!(r.status, 409);
 

@@ -165,6 +165,10 @@ impl App {
         let (records, next) = self.store().list_jobs(limit, page_token).await?;
         let mut views: Vec<JobView> = records.iter().map(JobView::from_record).collect();
         for v in &mut views {
+            // As in `job`: a live job's progress is fresher than the store's.
+            if let Some(l) = self.live(&v.id) {
+                v.progress = v.progress.max(l.borrow().progress);
+            }
             self.with_callback(v).await?;
         }
         Ok((views, next))
@@ -198,7 +202,7 @@ impl App {
         let (geometry, cameras) = self.geometry(scene, asked, spec.time).await?;
         if let crate::render::camera::CameraChoice::Scene(index) = request.camera {
             if index >= cameras.len() {
-                return Err(AppError::BadParameter {
+                return Err(AppError::Unprocessable {
                     field: "camera",
                     detail: crate::render::camera::CameraError::NoSuchCamera {
                         index,
@@ -328,7 +332,7 @@ impl App {
         let view = JobView::from_record(&cancelled);
         if let Some(l) = live {
             l.cancel.cancel();
-            let _ = l.events.send(view.clone());
+            l.events.send_replace(view.clone());
         }
         if view.callback.is_some() {
             self.notify(id);
@@ -413,6 +417,10 @@ impl App {
     /// Starts the job's thread.
     fn start(&self, record: JobRecord, work: Work, ticket: sched::Ticket) {
         let cancel = CancelToken::new();
+        // No receiver is kept: `send_replace` updates the view whether or not anyone
+        // streams it, so a GET and a cancel read the live progress (`send` would drop
+        // the value while no stream is open, and a GET would show the store's, up to
+        // 500 ms old).
         let (events, _) = watch::channel(JobView::from_record(&record));
         self.inner
             .live
@@ -464,7 +472,7 @@ impl App {
             Arc::new(move |p: f64| {
                 let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                 v.progress = p;
-                let _ = events.send(v.clone());
+                events.send_replace(v.clone());
                 // The store hears about progress at most every 500 ms.
                 let ms = t0.elapsed().as_millis() as u64;
                 if ms >= last_store.load(Ordering::Relaxed) + 500 {
@@ -490,7 +498,7 @@ impl App {
                 if let Ok(r) = rt.block_on(store.start_job(&id)) {
                     let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                     *v = JobView::from_record(&r);
-                    let _ = events.send(v.clone());
+                    events.send_replace(v.clone());
                 }
                 tracing::info!("job started");
             }
@@ -554,7 +562,7 @@ impl App {
                     observe(r.state);
                     let view = JobView::from_record(&r);
                     let has_callback = view.callback.is_some();
-                    let _ = events.send(view);
+                    events.send_replace(view);
                     if has_callback {
                         self.notify(&id);
                     }

@@ -42,7 +42,7 @@ pub enum AppError {
         /// Byte offset of the problem, where known.
         byte_offset: Option<u64>,
     },
-    /// A request parameter is malformed or contradicts the scene (400).
+    /// A query parameter is malformed or names what is not there (400).
     #[error("{field}: {detail}")]
     BadParameter {
         /// The parameter.
@@ -50,8 +50,8 @@ pub enum AppError {
         /// What is wrong.
         detail: String,
     },
-    /// A well-formed request that cannot be done (422): the wrong triangle count, an
-    /// option this renderer does not support.
+    /// A well-formed request that cannot be done (422): the wrong triangle count, a
+    /// render option outside its range or against another option or the scene.
     #[error("{field}: {detail}")]
     Unprocessable {
         /// The field.

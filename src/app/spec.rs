@@ -154,8 +154,12 @@ pub struct RenderSpec {
     pub callback: Option<String>,
 }
 
+/// A field the body spells right but whose value the service cannot run: out of its range,
+/// against another field, or not a view a camera can make. The body parsed, so this is the
+/// contract's "well-formed but invalid" (422), as a value past a configured limit is; 400
+/// stays for bodies that do not parse into a request (syntax, a type, an unknown field).
 fn bad(field: &'static str, detail: impl Into<String>) -> AppError {
-    AppError::BadParameter {
+    AppError::Unprocessable {
         field,
         detail: detail.into(),
     }
@@ -310,7 +314,7 @@ mod tests {
     fn cameras_that_cannot_be_made_are_refused_by_field() {
         let field = |json: &str| match serde_json::from_str::<RenderSpec>(json).unwrap().resolve(1)
         {
-            Err(AppError::BadParameter { field, .. }) => field,
+            Err(AppError::Unprocessable { field, .. }) => field,
             other => panic!("{json}: {other:?}"),
         };
         assert_eq!(field(r#"{"eye":[0,0,1],"target":[0,0,1]}"#), "target");
@@ -343,7 +347,7 @@ mod tests {
         let s: RenderSpec = serde_json::from_str(r#"{"eye":[0,0,1]}"#).unwrap();
         assert!(matches!(
             s.resolve(1),
-            Err(AppError::BadParameter {
+            Err(AppError::Unprocessable {
                 field: "target",
                 ..
             })
