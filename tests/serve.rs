@@ -1141,3 +1141,172 @@ fn sigterm_lets_a_running_render_finish_within_the_grace_period() {
     let png = s.req("GET", &format!("/v1/jobs/{job}/result"), &[], &[]);
     assert_eq!((png.status, &png.body[1..4]), (200, &b"PNG"[..]));
 }
+
+/// `POST …/frame`: positions and rays in one request answer what a `PUT` of the positions
+/// and a trace of the new version answer, and what `rayd trace` answers on those triangles;
+/// a frame refused for any reason (its positions or its rays) records no version.
+#[test]
+fn a_frame_updates_the_geometry_and_traces_it_in_one_request() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let s = Server::start(&data, &[]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let base = rayd::formats::binary::read_tri(
+        &s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[])
+            .body,
+    )
+    .unwrap();
+    let moved = |dy: f32| {
+        let mut tris = base.clone();
+        for t in &mut tris {
+            for v in &mut t.v {
+                v[1] += dy;
+            }
+        }
+        tris
+    };
+    let rays = rays_at([-50.0, 0.0, -50.0], [50.0, 100.0, 50.0], 3000);
+    let ray1 = write_rays(&rays);
+    let frame_type = [("Content-Type", "application/x-rayd-frame")];
+    let frame = |tri: &[u8], ray: &[u8], query: &str| {
+        let body = [tri, ray].concat();
+        s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/frame{query}"),
+            &frame_type,
+            &body,
+        )
+    };
+    let version = || {
+        s.req("GET", &format!("/v1/scenes/{id}"), &[], &[]).json()["version"]
+            .as_i64()
+            .unwrap()
+    };
+
+    // The frame, then the same trace of the version it made, then `rayd trace` on a TRI1
+    // file of the same positions: the same bytes.
+    let tris = moved(7.0);
+    let tri1 = write_tri(&tris);
+    let r = frame(&tri1, &ray1, "?accel=dacrt");
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.header("x-rayd-version"), Some("2"));
+    assert_eq!(r.header("x-rayd-accel"), Some("dacrt"));
+    assert!(r.header("server-timing").is_some());
+    assert_eq!(version(), 2);
+    let again = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/trace?version=2&accel=mbvh8"),
+        &[("Content-Type", "application/octet-stream")],
+        &ray1,
+    );
+    assert_eq!(again.status, 200);
+    assert_eq!(
+        r.body, again.body,
+        "the frame answers as a trace of its version"
+    );
+    let files = dir.path();
+    std::fs::write(files.join("v2.tri"), &tri1).unwrap();
+    std::fs::write(files.join("rays.ray"), &ray1).unwrap();
+    cli_trace(
+        &files.join("v2.tri"),
+        &files.join("rays.ray"),
+        &files.join("v2.hit"),
+        ["closest", "t_prim_uv", "mbvh8"],
+    );
+    assert_eq!(std::fs::read(files.join("v2.hit")).unwrap(), r.body);
+    assert!(
+        r.body[16..]
+            .chunks(16)
+            .any(|h| h[..4] != f32::INFINITY.to_le_bytes()),
+        "some rays hit"
+    );
+
+    // Refused frames record nothing: positions for another scene, positions with a NaN,
+    // a bad ray, cut-off rays, cut-off positions, another media type, a trace's query.
+    let mut nan_tri = tri1.clone();
+    nan_tri[16 + 36 * 5..16 + 36 * 5 + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let mut bad_rays = rays.clone();
+    bad_rays[9].dir = [0.0; 3];
+    let short = write_tri(&tris[..tris.len() - 1]);
+    let cut = &ray1[..ray1.len() - 3];
+    let tri_len = tri1.len() as u64;
+    for (tri, ray, query, status, place) in [
+        (
+            &short[..],
+            &ray1[..],
+            "",
+            422,
+            ("field", serde_json::json!("count")),
+        ),
+        (
+            &nan_tri,
+            &ray1,
+            "",
+            400,
+            ("byte_offset", serde_json::json!(16 + 36 * 5)),
+        ),
+        (
+            &tri1,
+            &write_rays(&bad_rays),
+            "",
+            422,
+            ("ray_index", serde_json::json!(9)),
+        ),
+        (
+            &tri1,
+            cut,
+            "",
+            400,
+            ("byte_offset", serde_json::json!(tri_len + 8)),
+        ),
+        (
+            &tri1[..100],
+            &[][..],
+            "",
+            400,
+            ("byte_offset", serde_json::json!(100)),
+        ),
+        (
+            &tri1,
+            &ray1,
+            "?version=1",
+            400,
+            ("field", serde_json::json!("version")),
+        ),
+    ] {
+        let r = frame(tri, ray, query);
+        assert_eq!(r.status, status, "{}", String::from_utf8_lossy(&r.body));
+        assert_eq!(
+            r.json()[place.0],
+            place.1,
+            "{}",
+            String::from_utf8_lossy(&r.body)
+        );
+    }
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/frame"),
+        &[("Content-Type", "application/octet-stream")],
+        &ray1,
+    );
+    assert_eq!(r.status, 415);
+    assert_eq!(version(), 2, "a refused frame recorded a version");
+
+    // `invalid=miss` answers the bad ray as a miss and records the frame.
+    let r = frame(&tri1, &write_rays(&bad_rays), "?invalid=miss");
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.header("x-rayd-version"), Some("3"));
+
+    // Versions made by frames survive a restart, as a `PUT`'s do.
+    s.stop();
+    let s = Server::start(&data, &[]);
+    let v2 = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/trace?version=2"),
+        &[("Content-Type", "application/octet-stream")],
+        &ray1,
+    );
+    assert_eq!(v2.status, 200);
+    assert_eq!(v2.body, std::fs::read(files.join("v2.hit")).unwrap());
+}

@@ -462,6 +462,24 @@ impl App {
 
     /// Stores new positions for every triangle of scene `id` as its next version.
     pub async fn update_geometry(&self, id: &str, body: bytes::Bytes) -> Result<i64, AppError> {
+        let staged = self.stage_geometry(id, body).await?;
+        self.commit_geometry(id, staged).await
+    }
+
+    /// The triangle count of scene `id`: what a geometry update must give.
+    pub async fn triangle_count(&self, id: &str) -> Result<usize, AppError> {
+        Ok(self.loaded(id).await?.static_pose.len())
+    }
+
+    /// The first half of a geometry update: the TRI1 `body` checked against scene `id`,
+    /// parsed, and its bytes made durable as a blob, with no version recorded yet. A frame
+    /// stages its positions while its rays arrive and records them
+    /// ([`App::commit_geometry`]) only once those are in and sound.
+    pub async fn stage_geometry(
+        &self,
+        id: &str,
+        body: bytes::Bytes,
+    ) -> Result<StagedGeometry, AppError> {
         let loaded = self.loaded(id).await?;
         let expected = loaded.static_pose.len();
         let bad = |e: crate::formats::binary::BinaryError| AppError::BadUpload {
@@ -483,7 +501,24 @@ impl App {
             self.store().put_blob(body.clone())
         );
         let tris = tris?.map_err(bad)?;
-        let (record, pruned) = match self.store().add_version(id, &blob?).await {
+        Ok(StagedGeometry {
+            loaded,
+            tris,
+            body,
+            blob: blob?,
+        })
+    }
+
+    /// Records staged positions as scene `id`'s next version (one transaction) and keeps
+    /// them in memory for the traces that follow; returns the version.
+    pub async fn commit_geometry(&self, id: &str, staged: StagedGeometry) -> Result<i64, AppError> {
+        let StagedGeometry {
+            loaded,
+            tris,
+            body,
+            blob,
+        } = staged;
+        let (record, pruned) = match self.store().add_version(id, &blob).await {
             Err(StoreError::NotFound { what: "blob", .. }) => {
                 stored_then_recorded(self.store(), body, |store, blob| async move {
                     store.add_version(id, &blob).await
@@ -500,6 +535,26 @@ impl App {
             Arc::new(loaded.scene.cameras.clone()),
         );
         Ok(version)
+    }
+
+    /// With `invalid=error`, refuses a batch holding a bad ray now (the search runs on the
+    /// pool): a frame checks its rays before its positions become a version. Rays the
+    /// reader vouched for are not read again.
+    pub async fn refuse_bad_rays(
+        &self,
+        rays: RaySegment,
+        policy: crate::jobs::InvalidPolicy,
+    ) -> Result<RaySegment, AppError> {
+        if policy != crate::jobs::InvalidPolicy::Error || rays.all_valid {
+            return Ok(rays);
+        }
+        let checked = self
+            .cpu(move || {
+                let mut rays = rays;
+                trace::validate_read(&mut rays, policy).map(|_| rays)
+            })
+            .await?;
+        Ok(checked?)
     }
 
     /// Deletes the old versions that jobs kept until they ended (see
@@ -675,6 +730,15 @@ impl App {
         })?;
         Ok(TraceIntake::Streamed { arrive, done })
     }
+}
+
+/// Positions checked, parsed and stored as a blob, not yet a version
+/// ([`App::stage_geometry`]).
+pub struct StagedGeometry {
+    loaded: Arc<Loaded>,
+    tris: Vec<Triangle>,
+    body: bytes::Bytes,
+    blob: BlobId,
 }
 
 /// A synchronous trace's place in the queue, ahead of every job, taken when it can start

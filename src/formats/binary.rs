@@ -572,6 +572,15 @@ pub fn tri_count(bytes: &[u8]) -> Result<usize, BinaryError> {
     .map(|h| h.count)
 }
 
+/// The triangle count in a TRI1 header (its first 16 bytes, the body's length unchecked):
+/// for a TRI1 document that arrives in pieces, or is followed by another (a frame's rays).
+pub fn tri_header_count(header: &[u8]) -> Result<usize, BinaryError> {
+    parse_header_fields(header, "TRI1", TRI1_MAGIC, "TRI1 has only format 0", |f| {
+        (f == 0).then_some(36)
+    })
+    .map(|h| h.count)
+}
+
 /// Reads a TRI1 body; a NaN or infinite coordinate is refused with its triangle and offset.
 pub fn read_tri(bytes: &[u8]) -> Result<Vec<Triangle>, BinaryError> {
     let count = tri_count(bytes)?;

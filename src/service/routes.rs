@@ -19,9 +19,9 @@ use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
 use crate::app::{
-    App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
+    App, AppError, FrameParams, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
 };
-use crate::formats::binary::{ray_count, BinaryError, Ray1Sink};
+use crate::formats::binary::{ray_count, tri_header_count, BinaryError, Ray1Sink, HEADER_BYTES};
 use crate::jobs::JobError;
 use crate::store::StoreError;
 
@@ -29,6 +29,8 @@ use crate::store::StoreError;
 const OCTET: &str = "application/octet-stream";
 /// The media type of TRI1 bodies.
 const TRI: &str = "application/x-rayd-tri";
+/// The media type of a frame: a TRI1 document followed by a RAY1 document.
+const FRAME: &str = "application/x-rayd-frame";
 
 /// Every domain route, for [`super::router`].
 pub fn routes() -> Routes {
@@ -53,6 +55,11 @@ pub fn routes() -> Routes {
             Method::POST,
             "/v1/scenes/{id}/trace",
             unlimited(axum::routing::post(trace)),
+        )
+        .method_router(
+            Method::POST,
+            "/v1/scenes/{id}/frame",
+            unlimited(axum::routing::post(frame)),
         )
         .post("/v1/scenes/{id}/render", render)
         .get("/v1/jobs", list_jobs)
@@ -412,6 +419,15 @@ async fn trace(
     let rays = sink.finish_segment().map_err(binary_error)?;
     let (hits, report) = intake.finish(rays).await?;
     drop(reader);
+    Ok(hits_response(&state, hits, &report))
+}
+
+/// A synchronous trace's answer: the HIT1 body, what ran, and its timings.
+fn hits_response(
+    state: &AppState,
+    hits: crate::jobs::HitBody,
+    report: &crate::jobs::TraceReport,
+) -> Response {
     state
         .metrics
         .observe_trace(report.rays as u64, report.trace_seconds);
@@ -428,6 +444,106 @@ async fn trace(
         ))
         .expect("ascii"),
     );
+    resp
+}
+
+/// `POST /v1/scenes/{id}/frame`: a geometry update and a trace of it in one request, for a
+/// client that sends new positions every frame. The body is the update's TRI1 document
+/// followed by the trace's RAY1 document. The positions are parsed and made durable while
+/// the rays arrive, recorded as the next version once the rays are in and sound, and the
+/// rays are traced against them: one round trip, and the update's writes hidden under the
+/// rays' upload. The answer is the trace's, plus `X-Rayd-Version`.
+async fn frame(
+    State(state): State<AppState>,
+    Extension(app): Extension<App>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(params): ApiQuery<FrameParams>,
+    headers: HeaderMap,
+    body: Body,
+) -> Result<Response, ApiError> {
+    media_type(&headers, &[FRAME])?;
+    let triangles = app.triangle_count(&id).await?;
+    app.trace_has_room()?;
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
+    // The positions, whole: the header is checked as soon as it is in, so a body for
+    // another scene is refused before the rest is read.
+    let tri_len = HEADER_BYTES + 36 * triangles;
+    let mut tri = bytes::BytesMut::new();
+    let mut rest = bytes::Bytes::new();
+    while tri.len() < tri_len {
+        let Some(mut chunk) = reader.next_chunk().await? else {
+            break;
+        };
+        let had = tri.len();
+        let take = chunk.len().min(tri_len - had);
+        tri.extend_from_slice(&chunk.split_to(take));
+        rest = chunk;
+        if had < HEADER_BYTES && tri.len() >= HEADER_BYTES {
+            let count = tri_header_count(&tri[..HEADER_BYTES]).map_err(binary_error)?;
+            if count != triangles {
+                return Err(AppError::Unprocessable {
+                    field: "count",
+                    detail: format!(
+                        "the frame's positions are {count} triangles but scene {id} has {triangles}: a frame gives new positions for every triangle, same ids"
+                    ),
+                }
+                .into());
+            }
+            tri.reserve(tri_len - tri.len());
+        }
+    }
+    if tri.len() < HEADER_BYTES {
+        return Err(binary_error(BinaryError::ShortHeader {
+            kind: "TRI1",
+            len: tri.len(),
+        }));
+    }
+    // The rays arrive while the positions are parsed and written; the rays' byte offsets
+    // are the frame body's.
+    let ray_error = |e: BinaryError| {
+        let api = binary_error(e.clone());
+        match e.byte_offset() {
+            Some(o) => api.with("byte_offset", o + tri_len as u64),
+            None => api,
+        }
+    };
+    let read_rays = async {
+        if tri.len() < tri_len {
+            return Err(ApiError::bad_request(format!(
+                "the frame's body ends in its positions: {} of the {tri_len} bytes of {triangles} triangles",
+                tri.len()
+            ))
+            .with("byte_offset", tri.len() as u64));
+        }
+        let mut sink = Ray1Sink::new(
+            state.config.max_rays as usize,
+            declared.and_then(|n| n.checked_sub(tri_len as u64)),
+        );
+        sink.push(&rest).map_err(ray_error)?;
+        while let Some(chunk) = reader.next_chunk().await? {
+            sink.push(&chunk).map_err(ray_error)?;
+        }
+        sink.finish_segment().map_err(ray_error)
+    };
+    let staged = app.stage_geometry(&id, tri.clone().freeze());
+    let (staged, rays) = tokio::join!(staged, read_rays);
+    let rays = rays?;
+    let staged = staged?;
+    // Nothing is recorded for a frame whose rays are refused.
+    let rays = app.refuse_bad_rays(rays, params.invalid).await?;
+    let version = app.commit_geometry(&id, staged).await?;
+    let intake = app
+        .begin_trace(&id, &params.trace(version as u32), None)
+        .await?;
+    let (hits, report) = intake.finish(rays).await?;
+    drop(reader);
+    let mut resp = hits_response(&state, hits, &report);
+    resp.headers_mut()
+        .insert("x-rayd-version", HeaderValue::from(version));
     Ok(resp)
 }
 
