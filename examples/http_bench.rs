@@ -16,7 +16,8 @@
 //! - `latency`: 1K-ray traces sent one after another while a 1024×768 path-traced render runs;
 //!   their latency percentiles, and the same with the server idle.
 //! - `frame`: frames of an animated scene, each a new animation time (`time=`) or a new
-//!   geometry version (`PUT .../geometry`) and a trace of N rays (`dacrt` unless `--accel`
+//!   geometry version (`PUT .../geometry`, or `POST .../frame` with the positions and the
+//!   rays in one body) and a trace of N rays (`dacrt` unless `--accel`
 //!   names the server's accelerator), against the same frame in process (`rayd trace
 //!   --accel dacrt`: preparation plus trace, whatever `--accel` says). With RAYS, the
 //!   frame's rays are also written there (for `scripts/http_trace_cpu.py`).
@@ -612,6 +613,7 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         &rays,
     )?;
     let (mut t_http, mut t_cli, mut g_http, mut g_cli) = (vec![], vec![], vec![], vec![]);
+    let mut f_http = vec![];
     for k in 1..=o.frames {
         // `time=`: a new animation time every frame.
         let time = 0.1 * k as f64;
@@ -662,12 +664,22 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         g_cli.push(
             c["build_seconds"].as_f64().unwrap_or(0.0) + c["trace_seconds"].as_f64().unwrap_or(0.0),
         );
+        // The same positions and rays in one request (`POST .../frame`), after the same
+        // in-process run as the `PUT` + trace: against the same reference.
+        let r = s.ok(
+            "POST",
+            &format!("/v1/scenes/{id}/frame?accel={}", o.accel("dacrt")),
+            "application/x-rayd-frame",
+            &[&tri[..], &rays[..]].concat(),
+        )?;
+        f_http.push(r.done);
         eprintln!(
-            "frame {k}: time= {:.3} s vs {:.3} s; PUT+trace {:.3} s (PUT {:.3}) vs {:.3} s; load {}",
+            "frame {k}: time= {:.3} s vs {:.3} s; PUT+trace {:.3} s (PUT {:.3}), frame {:.3} s, vs {:.3} s; load {}",
             t_http[k - 1],
             t_cli[k - 1],
             g_http[k - 1],
             put.done,
+            f_http[k - 1],
             g_cli[k - 1],
             load()
         );
@@ -678,9 +690,11 @@ fn frame_mode(o: &Opts) -> Result<(), String> {
         .unwrap_or_default()
         .to_string_lossy()
         .to_string();
+    let mut f_cli = g_cli.clone();
     for (what, http, cli) in [
         ("time=", &mut t_http, &mut t_cli),
         ("PUT geometry + trace", &mut g_http, &mut g_cli),
+        ("POST frame", &mut f_http, &mut f_cli),
     ] {
         let mut ratios: Vec<f64> = http.iter().zip(cli.iter()).map(|(h, c)| h / c).collect();
         println!(

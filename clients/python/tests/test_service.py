@@ -197,6 +197,26 @@ def test_update_geometry_makes_a_version_traced_like_rayd_trace_on_the_new_file(
     assert e.value.status == 422 and "triangles" in e.value.detail
 
 
+def test_a_frame_is_an_update_and_a_trace_in_one_request(rayd_bin, client, tmp_path):
+    box = client.upload(SCENES / "Box.glb")
+    base = box.triangles(version=1)
+    origins, directions = rays_at(box.info, 2000, seed=4)
+    moved = base - np.float32(0.125)
+    hits = box.frame(moved, origins, directions, accel="dacrt")
+    assert hits.version >= 2 and box.version == hits.version
+    assert hits.accel == "dacrt" and "trace" in hits.server_timing
+    tri = tmp_path / "frame.tri"
+    tri.write_bytes(bytes(formats.encode_triangles(moved)))
+    want, _ = rayd_trace(rayd_bin, tri, formats.encode_rays(origins, directions), tmp_path)
+    assert hits.body == want
+    assert box.trace(origins, directions, version=hits.version).body == want
+    assert np.array_equal(client.scene(box.id).triangles(hits.version), moved)
+    with pytest.raises(rayd.ProblemError) as e:
+        box.frame(moved[:-1], origins, directions)
+    assert e.value.status == 422 and e.value.field == "count"
+    assert client.scene(box.id).version == hits.version, "a refused frame made a version"
+
+
 def test_a_tri1_upload_traces_like_rayd_trace_on_the_same_file(rayd_bin, client, tmp_path):
     rng = np.random.default_rng(5)
     tris = rng.uniform(-1, 1, size=(300, 3, 3)).astype(np.float32)

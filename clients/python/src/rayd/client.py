@@ -39,6 +39,8 @@ TRI_MEDIA = "application/x-rayd-tri"
 _HIT_UV = np.dtype({"names": ["uv"], "formats": ["V8"], "offsets": [8], "itemsize": 16})
 """The ``u, v`` pair of a ``t_prim_uv`` HIT1 record as one 8-byte value."""
 OCTET = "application/octet-stream"
+FRAME_MEDIA = "application/x-rayd-frame"
+"""A frame's body: TRI1 positions, then RAY1 rays."""
 
 
 class Hits(dict):
@@ -51,15 +53,17 @@ class Hits(dict):
     one (``np.array(hits["t"])``) to write to it.
 
     ``accel`` is the accelerator that traced (what ``auto`` chose) and ``server_timing``
-    the server's ``build`` and ``trace`` milliseconds, when the answer carried them.
+    the server's ``build`` and ``trace`` milliseconds, when the answer carried them;
+    ``version`` the geometry version a :meth:`Scene.frame` made (None for other traces).
     """
 
-    def __init__(self, body, records, accel=None, server_timing=None):
+    def __init__(self, body, records, accel=None, server_timing=None, version=None):
         super().__init__(formats.hit_arrays(records))
         self.body = body
         self.records = records
         self.accel = accel
         self.server_timing = server_timing or {}
+        self.version = version
 
 
 def open3d_answer(records, normals, lead=None, version=None) -> dict:
@@ -446,6 +450,48 @@ class Scene:
             records,
             accel=resp.headers.get("X-Rayd-Accel"),
             server_timing=_server_timing(resp.headers.get("Server-Timing")),
+        )
+
+    def frame(
+        self,
+        triangles,
+        origins,
+        directions,
+        tmin=0.0,
+        tmax=np.inf,
+        query: str = "closest",
+        hit: str = "t_prim_uv",
+        accel: str | None = None,
+        *,
+        build: str | None = None,
+        precision: str | None = None,
+        invalid: str | None = None,
+    ) -> Hits:
+        """New positions for every triangle and a trace against them, in one request
+        (``POST …/frame``): what :meth:`update_geometry` then :meth:`trace` do, with one
+        round trip, the update's durable write hidden under the rays' upload. The new
+        version is ``hits.version`` (and this scene's :attr:`version`); a refused frame
+        makes none. Arguments as :meth:`update_geometry`'s and :meth:`trace`'s."""
+        params = self._trace_params(query, hit, accel, None, None, build, precision, invalid)
+        del params["version"], params["time"]
+        tri = formats.encode_triangles(triangles)
+        rays = formats.encode_rays(origins, directions, tmin, tmax)
+        resp, answer = self.client._binary(
+            "POST", f"{self._path}/frame", params=params, data=tri + rays,
+            headers={"Content-Type": FRAME_MEDIA},
+        )
+        version = int(resp.headers["X-Rayd-Version"])
+        self.info["version"] = version
+        known = formats.decode_triangles(tri)
+        known.flags.writeable = False
+        self._known[(version, None)] = known
+        records = formats.decode_hits(answer, HIT_FORMATS[hit], (len(rays) - 16) // 32)
+        return Hits(
+            answer,
+            records,
+            accel=resp.headers.get("X-Rayd-Accel"),
+            server_timing=_server_timing(resp.headers.get("Server-Timing")),
+            version=version,
         )
 
     def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, *,
