@@ -202,7 +202,16 @@ gltf = st.one_of(
     st.binary(max_size=64),
 )
 
+# A frame: positions for the shared scene (or not), then rays, valid or broken.
+frame = st.one_of(
+    st.tuples(tri1_valid(count=SCENE_TRIANGLES), ray1_valid()).map(lambda p: p[0] + p[1]),
+    st.tuples(tri1_valid(count=SCENE_TRIANGLES), ray1).map(lambda p: p[0] + p[1]),
+    st.tuples(tri1, ray1).map(lambda p: p[0] + p[1]),
+    tri1,
+)
+
 schemathesis.openapi.media_type("application/octet-stream", ray1)
+schemathesis.openapi.media_type("application/x-rayd-frame", frame)
 schemathesis.openapi.media_type("application/x-rayd-tri", tri1)
 schemathesis.openapi.media_type("model/gltf-binary", glb)
 schemathesis.openapi.media_type("model/gltf+json", gltf)
@@ -278,7 +287,7 @@ def hit1_answers_every_ray(ctx, response, case):
     per ray sent, and exactly 16 + count × record bytes (proto/binary-formats.md)."""
     if response.status_code != 200 or case.method.upper() != "POST":
         return None
-    if not case.path.endswith("/trace"):
+    if not case.path.endswith(("/trace", "/frame")):
         return None
     body = response.content
     if len(body) < 16:
@@ -289,6 +298,8 @@ def hit1_answers_every_ray(ctx, response, case):
     if magic != HIT1_MAGIC or version != 1 or fmt != want_fmt:
         raise AssertionError(f"HIT1 header magic={magic:#x} version={version} format={fmt}, asked hit={hit}")
     sent = case.body if isinstance(case.body, (bytes, bytearray)) else b""
+    if case.path.endswith("/frame"):
+        sent = sent[16 + 36 * SCENE_TRIANGLES :]  # the rays after the positions
     rays = struct.unpack("<Q", sent[8:16])[0] if len(sent) >= 16 else None
     if rays is not None and count != rays:
         raise AssertionError(f"HIT1 count {count} for {rays} rays")
