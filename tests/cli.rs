@@ -191,6 +191,7 @@ fn malformed_files_get_specific_errors() {
         let (ok, _, err) = rayd(&["trace", p(&scene), "--rays", p(&path), "--out", p(&out)]);
         assert!(!ok);
         assert!(err.contains(needle), "case {i}: {err}");
+        assert!(err.contains(p(&path)), "case {i} names no file: {err}");
     }
     let (ok, _, err) = rayd(&["info", "no-such-file.glb"]);
     assert!(!ok && err.contains("no-such-file.glb"), "{err}");
@@ -211,6 +212,61 @@ fn malformed_files_get_specific_errors() {
         !ok && err.contains("invalid value 'kd' for '--accel") && err.contains("dacrt-sampled"),
         "{err}"
     );
+}
+
+/// An output that is one of the inputs is refused before anything is written; rays may
+/// come from a pipe; an output is written whole (no temporary file is left beside it).
+#[test]
+fn outputs_never_overwrite_inputs_and_rays_may_come_from_a_pipe() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let rays = dir.path().join("rays.ray");
+    let body = write_rays(&[down(0.25, 0.25), down(5.0, 5.0)]);
+    std::fs::write(&rays, &body).unwrap();
+    let scene_bytes = std::fs::read(&scene).unwrap();
+    let other_name = dir.path().join("sub").join("..").join("rays.ray");
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    for out in [&rays, &scene, &other_name] {
+        let (ok, _, err) = rayd(&["trace", p(&scene), "--rays", p(&rays), "--out", p(out)]);
+        assert!(!ok && err.contains("would destroy the input"), "{err}");
+    }
+    assert_eq!(std::fs::read(&rays).unwrap(), body);
+    assert_eq!(std::fs::read(&scene).unwrap(), scene_bytes);
+
+    let out = dir.path().join("hits.hit");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rayd"))
+        .args(["trace", p(&scene), "--rays", "/dev/stdin", "--out", p(&out)])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    use std::io::Write;
+    child.stdin.take().unwrap().write_all(&body).unwrap();
+    let piped = child.wait_with_output().unwrap();
+    assert!(
+        piped.status.success(),
+        "{}",
+        String::from_utf8_lossy(&piped.stderr)
+    );
+    let (ok, _, err) = rayd(&[
+        "trace",
+        p(&scene),
+        "--rays",
+        p(&rays),
+        "--out",
+        p(&dir.path().join("file.hit")),
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        std::fs::read(dir.path().join("file.hit")).unwrap()
+    );
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+        .collect();
+    assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{names:?}");
 }
 
 #[test]

@@ -507,10 +507,23 @@ impl App {
             .engine()
             .control(cancel.clone(), Some(progress), ticket)
             .on_start(started);
-        let outcome = match work {
+        // A panic in the work (a dependency's, say, on memory it could not get) fails the
+        // job with the reason instead of leaving it `running` with nobody to end it.
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| match work {
             Work::Render(spec) => self.run_render(&record, &spec, &control),
             Work::Trace(req) => self.run_trace(&record, &req, &control),
-        };
+        }))
+        .unwrap_or_else(|panic| {
+            let reason = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "no message".into());
+            tracing::error!(%reason, "the job's work panicked");
+            Err(AppError::Internal(format!(
+                "the job's work panicked: {reason}"
+            )))
+        });
         // `control` holds the job's place in the scheduler until the end of this function:
         // the job counts as running until its end is recorded, which a shutdown waits for.
         let ran = ran_from.get().map_or(0.0, |t| t.elapsed().as_secs_f64());

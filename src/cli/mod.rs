@@ -241,3 +241,53 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 
 /// A path argument.
 type PathArg = PathBuf;
+
+/// Refuses an output path that is one of the command's inputs, through whatever path
+/// (a link, `./`, another spelling): writing it would destroy the input.
+fn refuse_overwriting(out: &std::path::Path, inputs: &[&std::path::Path]) -> Result<(), CliError> {
+    let Ok(o) = std::fs::metadata(out) else {
+        return Ok(()); // not there yet: nothing to destroy
+    };
+    for input in inputs {
+        let Ok(i) = std::fs::metadata(input) else {
+            continue;
+        };
+        #[cfg(unix)]
+        let same = {
+            use std::os::unix::fs::MetadataExt;
+            (o.dev(), o.ino()) == (i.dev(), i.ino())
+        };
+        #[cfg(not(unix))]
+        let same = std::fs::canonicalize(out).ok() == std::fs::canonicalize(input).ok();
+        if same && o.is_file() && i.is_file() {
+            return Err(CliError::Usage(format!(
+                "the output {} is the input {}: writing it would destroy the input",
+                out.display(),
+                input.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Writes `bytes` to `path` whole or not at all: into a temporary file beside it, renamed
+/// over it once written, so that a failed or interrupted write leaves the old file (or
+/// none) and never a part of the new one. A path that is not a regular file (a pipe,
+/// `/dev/stdout`) is written in place.
+fn write_whole(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
+        return std::fs::write(path, bytes);
+    }
+    let name = path
+        .file_name()
+        .ok_or_else(|| std::io::Error::other("the path names no file"))?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(format!(".rayd-{}.tmp", std::process::id()));
+    let tmp = path.with_file_name(tmp_name);
+    let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
+    if written.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    written
+}

@@ -150,6 +150,14 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         )
     };
     let pattern = a.out.display().to_string();
+    for k in 0..times.len() {
+        let out = if a.frames.is_some() {
+            frame_name(&pattern, k)
+        } else {
+            pattern.clone()
+        };
+        super::refuse_overwriting(out.as_ref(), &[&a.scene])?;
+    }
     let mut written = Vec::new();
     let report = engine.render(
         &request,
@@ -162,7 +170,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             } else {
                 pattern.clone()
             };
-            std::fs::write(&out, bytes).map_err(|source| {
+            super::write_whole(out.as_ref(), &bytes).map_err(|source| {
                 crate::jobs::JobError::Geometry(
                     FormatError::Io {
                         path: out.clone(),

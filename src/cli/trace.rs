@@ -41,20 +41,26 @@ pub(super) fn read_ray_file(path: &std::path::Path) -> Result<Vec<Ray>, CliError
         source,
     };
     let mut file = std::fs::File::open(path).map_err(io)?;
-    let len = file.metadata().map_err(io)?.len();
-    let mut sink = Ray1Sink::new(usize::MAX, Some(len));
+    let meta = file.metadata().map_err(io)?;
+    // A pipe's or a device's length is no body length: read what arrives.
+    let len = meta.is_file().then(|| meta.len());
+    let mut sink = Ray1Sink::new(usize::MAX, len);
     let mut buf = vec![0u8; 1 << 20];
     loop {
         let n = file.read(&mut buf).map_err(io)?;
         if n == 0 {
             break;
         }
-        sink.push(&buf[..n]).map_err(FormatError::from)?;
+        sink.push(&buf[..n])
+            .map_err(|e| FormatError::from(e).in_file(path))?;
     }
-    Ok(sink.finish().map_err(FormatError::from)?)
+    Ok(sink
+        .finish()
+        .map_err(|e| FormatError::from(e).in_file(path))?)
 }
 
 pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
+    super::refuse_overwriting(&a.out, &[&a.scene, &a.rays])?;
     let scene = crate::formats::load_scene(&a.scene, &a.core.load_options()?)?;
     let mut rays = read_ray_file(&a.rays)?;
     let invalid = trace::validate(&mut rays, a.invalid).map_err(|e| match e {
@@ -78,7 +84,7 @@ pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
         invalid: a.invalid,
     };
     let (body, report) = engine.trace(&geometry, &rays, &request, invalid, &engine.detached())?;
-    std::fs::write(&a.out, body.as_ref()).map_err(|source| FormatError::Io {
+    super::write_whole(&a.out, body.as_ref()).map_err(|source| FormatError::Io {
         path: a.out.display().to_string(),
         source,
     })?;

@@ -33,6 +33,29 @@ pub enum FormatError {
     /// The file's kind is not known from its name.
     #[error("{0}: unknown scene file type (expected .glb, .gltf or .tri)")]
     UnknownSceneType(String),
+    /// What was wrong in a named file (a body error says where in the file, not which).
+    #[error("{path}: {source}")]
+    InFile {
+        /// The file.
+        path: String,
+        /// What was wrong with its contents.
+        source: Box<FormatError>,
+    },
+}
+
+impl FormatError {
+    /// This error, said of the file at `path` (an I/O error already names it).
+    pub fn in_file(self, path: &Path) -> FormatError {
+        match self {
+            e @ (FormatError::Io { .. }
+            | FormatError::UnknownSceneType(_)
+            | FormatError::InFile { .. }) => e,
+            e => FormatError::InFile {
+                path: path.display().to_string(),
+                source: Box::new(e),
+            },
+        }
+    }
 }
 
 /// How to load a scene.
@@ -84,6 +107,10 @@ pub fn load_scene_with(
     options: &LoadOptions,
     parts: Parts,
 ) -> Result<Scene, FormatError> {
+    load_named(path, options, parts).map_err(|e| e.in_file(path))
+}
+
+fn load_named(path: &Path, options: &LoadOptions, parts: Parts) -> Result<Scene, FormatError> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

@@ -23,6 +23,13 @@ pub const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
 /// Longest side of one texture, pixels.
 pub const MAX_TEXTURE_SIDE: u32 = 16384;
 
+/// Most texels a render may decode over all of a scene's textures, counting an image once
+/// per use (colour and data uses each build a pyramid): 2^28, 1 GiB of 8-bit texels, about
+/// 2 GiB at the decoders' peak with the pyramids. Sixteen 4096² textures fit, or sixty-four
+/// of 2048²; a file of many small PNGs that each declare 8192² (a few KB apiece) does not,
+/// and is refused before a pixel is decoded, where it would exhaust memory otherwise.
+pub const MAX_SCENE_TEXTURE_PIXELS: u64 = 1 << 28;
+
 /// Errors of preparing textures.
 #[derive(Debug, thiserror::Error)]
 pub enum TextureError {
@@ -35,6 +42,23 @@ pub enum TextureError {
         mime: String,
         /// What the decoder said.
         reason: String,
+    },
+    /// The scene's textures together declare more texels than a render may decode.
+    #[error(
+        "the scene's textures declare {pixels} texels in all (image {largest}, the largest, \
+         {width} × {height}; an image counts once per use), over the limit of {limit}"
+    )]
+    TooLarge {
+        /// Texels declared, over every use.
+        pixels: u64,
+        /// The limit ([`MAX_SCENE_TEXTURE_PIXELS`]).
+        limit: u64,
+        /// The image with the most texels.
+        largest: usize,
+        /// Its width.
+        width: u32,
+        /// Its height.
+        height: u32,
     },
 }
 
@@ -546,6 +570,42 @@ impl Lookup {
     }
 }
 
+/// Refuses a scene whose used images together declare more than
+/// [`MAX_SCENE_TEXTURE_PIXELS`], reading only their headers: the images are decoded at
+/// once, so one image's limit does not bound them all. An image whose header does not
+/// read is left to the decoder, which names it.
+fn check_declared_size(scene: &Scene, uses: &[[bool; 2]]) -> Result<(), TextureError> {
+    let mut pixels = 0u64;
+    let mut largest = (0u64, 0usize, 0u32, 0u32);
+    for (image, u) in uses.iter().enumerate() {
+        let n = u64::from(u[0]) + u64::from(u[1]);
+        if n == 0 {
+            continue;
+        }
+        let dims = image::ImageReader::new(std::io::Cursor::new(&scene.images[image].bytes))
+            .with_guessed_format()
+            .ok()
+            .and_then(|r| r.into_dimensions().ok());
+        if let Some((w, h)) = dims {
+            let p = u64::from(w) * u64::from(h);
+            pixels = pixels.saturating_add(p.saturating_mul(n));
+            if p > largest.0 {
+                largest = (p, image, w, h);
+            }
+        }
+    }
+    if pixels > MAX_SCENE_TEXTURE_PIXELS {
+        return Err(TextureError::TooLarge {
+            pixels,
+            limit: MAX_SCENE_TEXTURE_PIXELS,
+            largest: largest.1,
+            width: largest.2,
+            height: largest.3,
+        });
+    }
+    Ok(())
+}
+
 impl TextureSet {
     /// Decodes every image that a material of `scene` samples through a texture this
     /// renderer uses (base colour, metallic-roughness, normal, emissive, and
@@ -568,6 +628,7 @@ impl TextureSet {
                 u[1] |= used[1];
             }
         }
+        check_declared_size(scene, &uses)?;
         // On the pool, an image per task: decoding is serial within an image, and four
         // 2048² JPEGs one after another were most of a textured frame's preparation.
         let pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = uses
@@ -928,6 +989,66 @@ mod tests {
             materials,
             ..Scene::default()
         }
+    }
+
+    /// A black `side` × `side` grey PNG: tens of KB that decode to `side`² bytes and
+    /// more, as a decompression bomb's do.
+    fn declared_png(side: u32) -> Vec<u8> {
+        let mut png = Vec::new();
+        {
+            let mut e = ::png::Encoder::new(&mut png, side, side);
+            e.set_color(::png::ColorType::Grayscale);
+            e.set_compression(::png::Compression::Fast);
+            let mut w = e.write_header().unwrap();
+            w.write_image_data(&vec![0u8; (side * side) as usize])
+                .unwrap();
+        }
+        png
+    }
+
+    #[test]
+    fn textures_that_together_declare_too_many_texels_are_refused_before_decoding() {
+        use crate::scene::{Image, Material, Texture};
+        let side = 8192u32;
+        let n = (MAX_SCENE_TEXTURE_PIXELS / (u64::from(side) * u64::from(side))) as usize;
+        let bytes: std::sync::Arc<[u8]> = declared_png(side).into();
+        let scene = |images: usize| Scene {
+            images: (0..images)
+                .map(|_| Image {
+                    mime_type: "image/png".into(),
+                    bytes: bytes.clone(),
+                })
+                .collect(),
+            textures: (0..images)
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials: (0..images)
+                .map(|t| Material {
+                    base_color_texture: Some(TextureRef {
+                        texture: t,
+                        tex_coord: 0,
+                        transform: None,
+                    }),
+                    ..Material::default()
+                })
+                .collect(),
+            ..Scene::default()
+        };
+        match TextureSet::of(&scene(n + 1)) {
+            Err(e @ TextureError::TooLarge { .. }) => {
+                let text = e.to_string();
+                assert!(
+                    text.contains("8192 × 8192") && text.contains("268435456"),
+                    "{text}"
+                );
+            }
+            other => panic!("{:?}", other.map(|_| ())),
+        }
+        // One image fewer is within the limit (not decoded here: 1 GiB of texels).
+        assert!(check_declared_size(&scene(n), &vec![[false, true]; n]).is_ok());
     }
 
     #[test]
