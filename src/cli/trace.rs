@@ -43,7 +43,7 @@ pub(super) fn read_ray_file(path: &std::path::Path) -> Result<Vec<Ray>, CliError
     let mut file = std::fs::File::open(path).map_err(io)?;
     let meta = file.metadata().map_err(io)?;
     // A pipe's or a device's length is no body length: read what arrives.
-    let len = meta.is_file().then(|| meta.len());
+    let len = meta.is_file().then_some(meta.len());
     let mut sink = Ray1Sink::new(usize::MAX, len);
     let mut buf = vec![0u8; 1 << 20];
     loop {
