@@ -7,7 +7,7 @@
 #   SPP=64 scripts/pictures.sh     # more samples
 #
 # Scenes come from ../shared/scenes (MANIFEST.md there) and, for the Fox, scenes/. Sizes and
-# samples are kept small (320x240, 16 spp): a few minutes on two cores.
+# samples are kept small (320x240, 16 spp): about a minute on two cores.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 

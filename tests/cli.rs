@@ -269,6 +269,45 @@ fn outputs_never_overwrite_inputs_and_rays_may_come_from_a_pipe() {
     assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{names:?}");
 }
 
+/// Sizes past the limits are refused by name before anything is allocated, options that
+/// would be ignored are refused, and negative numbers are values.
+#[test]
+fn absurd_sizes_and_ignored_options_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let s = p(&scene);
+    for (args, needle) in [
+        (
+            vec!["bench", s, "--width", "65536", "--height", "65536"],
+            "over the limit",
+        ),
+        (
+            vec!["bench", s, "--frames", "18446744073709551615"],
+            "over the limit",
+        ),
+        (
+            vec![
+                "bench",
+                s,
+                "--frames",
+                "3",
+                "--rays-per-frame",
+                "10000000000",
+            ],
+            "over the limit",
+        ),
+        (vec!["info", s, "--threads", "5000"], "not in 0..=1024"),
+        (vec!["render", s, "-o", "x.png", "--fov", "30"], "--eye"),
+        (vec!["render", s, "-o", "x.png", "--up", "0,0,1"], "--eye"),
+    ] {
+        let (ok, _, err) = rayd(&args);
+        assert!(!ok && err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+    let (ok, _, err) = rayd(&["info", s, "--time", "-0.5"]);
+    assert!(ok, "{err}");
+}
+
 #[test]
 fn render_writes_png_and_exr() {
     let dir = tempfile::tempdir().unwrap();

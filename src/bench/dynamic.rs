@@ -396,6 +396,20 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
             "--rays-per-frame needs counts of at least 1".into(),
         ));
     }
+    // Bounded as a render's frames and a trace's batch are.
+    let limits = crate::jobs::Limits::default();
+    if config.frames > limits.max_frames {
+        return Err(BenchError::Config(format!(
+            "--frames {} is over the limit of {}",
+            config.frames, limits.max_frames
+        )));
+    }
+    if let Some(&n) = config.rays_per_frame.iter().find(|&&n| n > limits.max_rays) {
+        return Err(BenchError::Config(format!(
+            "--rays-per-frame {n} is over the limit of {} rays a batch",
+            limits.max_rays
+        )));
+    }
     for &k in &config.accels {
         if !k.available() {
             return Err(crate::accel::AccelError::Unavailable(k.name()).into());

@@ -332,6 +332,14 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
             "--runs, --width and --height must be at least 1".into(),
         ));
     }
+    // A set holds width × height rays: bounded as a trace's batch is (`--max-rays`).
+    let max_rays = crate::jobs::Limits::default().max_rays as u64;
+    let rays = u64::from(config.width) * u64::from(config.height);
+    if rays > max_rays {
+        return Err(BenchError::Config(format!(
+            "--width × --height is {rays} rays a set, over the limit of {max_rays}"
+        )));
+    }
     for &k in &config.accels {
         if !k.available() {
             return Err(crate::accel::AccelError::Unavailable(k.name()).into());

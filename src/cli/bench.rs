@@ -32,7 +32,7 @@ pub(super) struct BenchArgs {
     #[arg(long, default_value_t = 5)]
     runs: usize,
     /// Thread counts to measure, comma-separated; 0 = all cores.
-    #[arg(long, value_delimiter = ',', default_value = "1,0")]
+    #[arg(long, value_delimiter = ',', default_value = "1,0", value_parser = super::threads_arg())]
     threads: Vec<usize>,
     /// Seed of the ray sets.
     #[arg(long, default_value_t = 1)]
@@ -47,7 +47,7 @@ pub(super) struct BenchArgs {
     #[arg(long, default_value = "auto", value_enum)]
     reference: AccelKind,
     /// Animation time in seconds.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     time: Option<f64>,
     /// Write each ray set (RAY1) and the reference hits (HIT1) into this directory.
     #[arg(long)]

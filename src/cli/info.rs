@@ -18,11 +18,11 @@ pub(super) struct InfoArgs {
     /// Ray/triangle test of the accelerator: fast or watertight.
     #[arg(long, default_value = "watertight", value_enum)]
     precision: Precision,
-    /// Threads for the build; 0 or absent: all cores.
-    #[arg(long, default_value_t = 0)]
+    /// Threads for the build; 0 or absent: all cores (at most 1024).
+    #[arg(long, default_value_t = 0, value_parser = super::threads_arg())]
     threads: usize,
     /// Animation time in seconds (absent: the file's static pose).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     time: Option<f64>,
 }
 

@@ -146,11 +146,11 @@ struct CoreArgs {
     /// Ray/triangle test: fast (Möller–Trumbore) or watertight.
     #[arg(long, value_enum, default_value_t = Precision::Watertight)]
     precision: Precision,
-    /// Threads for every phase; 0 or absent: all cores.
-    #[arg(long, default_value_t = 0)]
+    /// Threads for every phase; 0 or absent: all cores (at most 1024).
+    #[arg(long, default_value_t = 0, value_parser = threads_arg())]
     threads: usize,
     /// Animation time in seconds (absent: the file's static pose).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     time: Option<f64>,
 }
 
@@ -198,11 +198,17 @@ struct CameraArgs {
     /// Point looked at x,y,z (with --eye).
     #[arg(long, value_parser = parse_vec3, requires = "eye", allow_hyphen_values = true)]
     target: Option<[f64; 3]>,
-    /// Up vector x,y,z of a look-at camera.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true)]
+    /// Up vector x,y,z of a look-at camera (with --eye and --target).
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0", allow_hyphen_values = true,
+          requires = "eye")]
     up: [f64; 3],
-    /// Vertical field of view of a look-at camera, degrees.
-    #[arg(long, default_value_t = 45.0)]
+    /// Vertical field of view of a look-at camera, degrees (with --eye and --target).
+    #[arg(
+        long,
+        default_value_t = 45.0,
+        allow_negative_numbers = true,
+        requires = "eye"
+    )]
     fov: f64,
 }
 
@@ -241,6 +247,16 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 
 /// A path argument.
 type PathArg = PathBuf;
+
+/// Most threads a command or the service may ask for: far past any machine this runs on,
+/// and short of what makes a pool of threads the request's own undoing (10,000 took
+/// minutes to start for three rays).
+pub const MAX_THREADS: u64 = 1024;
+
+/// `--threads`' parser: 0 (all cores) to [`MAX_THREADS`].
+fn threads_arg() -> clap::builder::RangedU64ValueParser<usize> {
+    clap::builder::RangedU64ValueParser::<usize>::new().range(0..=MAX_THREADS)
+}
 
 /// Refuses an output path that is one of the command's inputs, through whatever path
 /// (a link, `./`, another spelling): writing it would destroy the input.

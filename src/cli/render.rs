@@ -30,7 +30,8 @@ pub(super) struct RenderArgs {
     /// What a pixel shows.
     #[arg(long, value_enum, default_value_t = Integrator::Primary)]
     integrator: Integrator,
-    /// Diffuse bounces of the path integrator.
+    /// Largest number of surface scatterings of a `path` (1: direct light only; 0: emitters
+    /// and the sky alone).
     #[arg(long, default_value_t = 2)]
     bounces: u32,
     #[command(flatten)]

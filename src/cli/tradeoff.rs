@@ -74,11 +74,11 @@ pub(super) struct TradeoffArgs {
     /// Ray/triangle test of the base.
     #[arg(long, value_enum, default_value_t = Precision::Watertight)]
     precision: Precision,
-    /// Threads of every render; 0: all cores.
-    #[arg(long, default_value_t = 0)]
+    /// Threads of every render; 0: all cores (at most 1024).
+    #[arg(long, default_value_t = 0, value_parser = super::threads_arg())]
     threads: usize,
     /// Animation time in seconds (absent: the file's static pose).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     time: Option<f64>,
 }
 

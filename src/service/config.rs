@@ -31,8 +31,9 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_DATA_DIR", default_value = "rayd-data")]
     pub data_dir: PathBuf,
 
-    /// Threads for tracing and rendering; 0: all cores.
-    #[arg(long, env = "RAYD_THREADS", default_value_t = 0)]
+    /// Threads for tracing and rendering; 0: all cores (at most 1024).
+    #[arg(long, env = "RAYD_THREADS", default_value_t = 0,
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=1024))]
     pub threads: usize,
 
     /// Jobs of every kind that may wait; past this, new work is answered 503.
