@@ -567,7 +567,19 @@ impl App {
                 ) {
                     let _ = store.start_job(&id).await;
                 }
-                store.finish_job(&id, end).await
+                match store.finish_job(&id, end).await {
+                    // Its results could not be recorded (a blob gone, say): the job ends
+                    // as failed with the reason, never `running` with nobody to end it.
+                    Err(e) => {
+                        tracing::error!("cannot record the job's end: {e}; recording a failure");
+                        let failed = JobOutcome::Failed {
+                            error: format!("the job's results could not be recorded: {e}"),
+                            stats: None,
+                        };
+                        store.finish_job(&id, failed).await
+                    }
+                    ok => ok,
+                }
             });
             match finished {
                 Ok(r) => {

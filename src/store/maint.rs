@@ -85,6 +85,11 @@ impl Store {
     /// (the file is young, or referenced, and GC keeps it). A record is committed only after
     /// checking, under the gate, that its blobs exist; one that names a blob collected since
     /// its upload (after more than `gc_grace`) fails with `NotFound` instead of dangling.
+    ///
+    /// A running job's results are stored as it makes them (a sequence's frames, one by
+    /// one) and named by its record only when it ends, so blobs written since the oldest
+    /// running job started are kept however old they are: a sequence that renders for
+    /// longer than `gc_grace` keeps its first frames.
     pub async fn gc(&self) -> Result<GcReport> {
         let _gate = self.inner.gc_gate.write().await;
         let referenced: HashSet<String> = sqlx::query(REFERENCED_BLOBS)
@@ -93,6 +98,15 @@ impl Store {
             .iter()
             .map(|r| r.try_get::<String, _>(0))
             .collect::<Result<_, _>>()?;
+        let oldest_running: Option<Millis> =
+            sqlx::query_scalar("SELECT MIN(started_at) FROM jobs WHERE state = 'running'")
+                .fetch_one(&self.inner.reader)
+                .await?;
+        // A second's slack for file times coarser than the clock's.
+        let running_since = oldest_running.map(|ms| {
+            SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(ms.max(0) as u64)
+                - std::time::Duration::from_secs(1)
+        });
         let blobs = Arc::clone(&self.inner.blobs);
         let grace = self.inner.options.gc_grace;
         blocking(&self.inner.dir, move || {
@@ -108,7 +122,7 @@ impl Store {
                 }
                 // A clock step backwards makes the file look young: keep it.
                 let age = now.duration_since(modified).unwrap_or_default();
-                if age < grace {
+                if age < grace || running_since.is_some_and(|since| modified >= since) {
                     report.kept_recent += 1;
                     continue;
                 }

@@ -1101,6 +1101,55 @@ async fn gc_keeps_young_and_referenced_blobs() {
     assert_eq!(store.gc().await.unwrap().deleted, 0);
 }
 
+/// A sequence's frames are stored as they are rendered and named by the job's record
+/// only at its end: blobs written since the oldest running job started are kept past the
+/// grace, so a render longer than the grace keeps its first frames; older ones still go.
+#[tokio::test]
+async fn gc_keeps_what_a_running_job_has_written_however_old() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        gc_grace: Duration::from_secs(900),
+        ..opts()
+    };
+    let store = Store::open(tmp.path(), options).await.unwrap();
+    let s = scene(&store, b"scene").await;
+    let (job, _) = store.create_job(render_job(&s)).await.unwrap();
+    store.start_job(&job.id).await.unwrap();
+    // Started three hours ago; its first frame written two hours ago.
+    let hours_ago = |h: u64| {
+        (SystemTime::now() - Duration::from_secs(3600 * h))
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .unwrap()
+            .as_millis() as i64
+    };
+    sqlx::query("UPDATE jobs SET started_at = ? WHERE id = ?")
+        .bind(hours_ago(3))
+        .bind(&job.id)
+        .execute(&store.inner.writer)
+        .await
+        .unwrap();
+    let frame = store.put_blob(b"frame 0".to_vec()).await.unwrap();
+    age(
+        &store.blob_path(frame.as_str()).await.unwrap(),
+        Duration::from_secs(7200),
+    );
+    let stale = store.put_blob(b"from before the job".to_vec()).await.unwrap();
+    age(
+        &store.blob_path(stale.as_str()).await.unwrap(),
+        Duration::from_secs(4 * 3600),
+    );
+    assert_eq!(store.gc().await.unwrap().deleted, 1);
+    assert!(store.get_blob(stale.as_str()).await.is_err());
+    let end = JobOutcome::Succeeded {
+        stats: None,
+        result: None,
+        frames: vec![(frame.clone(), "image/png".into())],
+    };
+    let ended = store.finish_job(&job.id, end).await.unwrap();
+    assert_eq!(ended.state, JobState::Succeeded);
+    assert_eq!(store.get_blob(frame.as_str()).await.unwrap(), b"frame 0");
+}
+
 /// A job's input blob (an async trace's rays) is kept for as long as the job's record
 /// is, however long it waits in the queue, and collected once the job is deleted.
 #[tokio::test]
