@@ -553,6 +553,37 @@ fn the_service_end_to_end() {
         br#"{"width": 8, "height": 8}"#,
     );
     assert_eq!(a.json()["id"], b.json()["id"]);
+    // A retry after a geometry update finds the same job (the first took the latest
+    // version then); another body with the key is 409.
+    let tri = s
+        .req(
+            "GET",
+            &format!("/v1/scenes/{id}/geometry?version=1"),
+            &[],
+            &[],
+        )
+        .body;
+    let put = s.req(
+        "PUT",
+        &format!("/v1/scenes/{id}/geometry"),
+        &[("Content-Type", "application/x-rayd-tri")],
+        &tri,
+    );
+    assert_eq!(put.status, 200, "{}", String::from_utf8_lossy(&put.body));
+    let c = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &k,
+        br#"{"width": 8, "height": 8}"#,
+    );
+    assert_eq!((c.status, &c.json()["id"]), (202, &a.json()["id"]));
+    let d = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &k,
+        br#"{"width": 9, "height": 8}"#,
+    );
+    assert_eq!(d.status, 409, "{}", String::from_utf8_lossy(&d.body));
 
     // Cancelling a running render: it stops within a wave and stays as cancelled.
     let long = render(
@@ -601,7 +632,8 @@ fn the_service_end_to_end() {
     let s = Server::start(&data, &[]);
     assert_eq!(
         s.req("GET", &format!("/v1/scenes/{id}"), &[], &[]).json()["version"],
-        2
+        3,
+        "versions 2 (moved) and 3 (version 1's positions again, for the idempotency retry)"
     );
     let png2 = s.req("GET", &format!("/v1/jobs/{job}/result?frame=0"), &[], &[]);
     assert_eq!(png2.status, 200);

@@ -213,6 +213,21 @@ impl App {
             }
         }
         let mut spec = spec;
+        // A retry finds its job before it needs a place in the queue (a full queue does not
+        // refuse it), and before the latest version is filled in (a version made since the
+        // first try does not make it another request).
+        if let Some(job) = self
+            .retried(&idempotency_key, JobKind::Render, scene, |version| {
+                let mut first = spec.clone();
+                first.version = first.version.or(Some(version));
+                serde_json::to_string(&first).expect("a spec serialises")
+            })
+            .await?
+        {
+            let mut view = JobView::from_record(&job);
+            self.with_callback(&mut view).await?;
+            return Ok((view, false));
+        }
         let priority = spec.priority;
         let ticket = self.engine().scheduler().admit(priority as u16, false)?;
         let mut version = geometry.key.version;
@@ -272,6 +287,22 @@ impl App {
     ) -> Result<JobView, AppError> {
         let asked = params.version;
         let (geometry, _) = self.geometry(scene, asked, params.time).await?;
+        // As for renders: a retry finds its job first (the rays named by their hash).
+        let rays_id = crate::store::BlobId::of(&rays_body).to_string();
+        if let Some(job) = self
+            .retried(&idempotency_key, JobKind::Trace, scene, |version| {
+                let mut first = params;
+                first.version = first.version.or(Some(version));
+                serde_json::to_string(&TraceJobRequest {
+                    params: first,
+                    rays_blob: rays_id.clone(),
+                })
+                .expect("serialises")
+            })
+            .await?
+        {
+            return Ok(JobView::from_record(&job));
+        }
         let ticket = self.engine().scheduler().admit(50, false)?;
         let rays_blob = self.store().put_blob(rays_body).await?;
         let mut version = geometry.key.version;
@@ -311,6 +342,36 @@ impl App {
             self.start(record.clone(), Work::Trace(request), ticket);
         }
         Ok(JobView::from_record(&record))
+    }
+
+    /// The job a retry with `key` finds: the one the key made, if it was made for the same
+    /// kind, scene and request, where `request(version)` is this request as it was stored
+    /// with the job's version filled in (a request naming none took the latest); 409 if
+    /// the key made another. `None`: no key, or no job yet.
+    async fn retried(
+        &self,
+        key: &Option<String>,
+        kind: JobKind,
+        scene: &str,
+        request: impl FnOnce(u32) -> String,
+    ) -> Result<Option<JobRecord>, AppError> {
+        let Some(key) = key else {
+            return Ok(None);
+        };
+        let Some(job) = self.store().job_by_idempotency_key(key).await? else {
+            return Ok(None);
+        };
+        let same = job.kind == kind
+            && job.scene_id == scene
+            && u32::try_from(job.version).is_ok_and(|v| job.request == request(v));
+        if !same {
+            return Err(StoreError::Conflict(format!(
+                "idempotency key {key:?} was used for job {} with a different request",
+                job.id
+            ))
+            .into());
+        }
+        Ok(Some(job))
     }
 
     /// Cancels a queued or running job (it stops within one wave and stays as
@@ -548,6 +609,12 @@ impl App {
             Err(AppError::Job(JobError::Cancelled)) => {
                 tracing::info!("job cancelled");
                 observe(JobState::Cancelled);
+                self.forget_live(&id);
+                return;
+            }
+            // Refused its start by a shutdown: its record stays queued, for the next start.
+            Err(AppError::Job(JobError::ShuttingDown)) if ran_from.get().is_none() => {
+                tracing::info!("job left queued by the shutdown");
                 self.forget_live(&id);
                 return;
             }

@@ -145,6 +145,13 @@ impl Scheduler {
                 self.wake.notify_all();
                 return Err(JobError::Cancelled);
             }
+            // Once shutting down, no job starts: a queued one stays queued for the next
+            // start, and the grace period is the running ones' alone.
+            if s.shutting_down && !ticket.started.load(Ordering::Acquire) {
+                s.waiting.remove(&ticket.rank);
+                self.wake.notify_all();
+                return Err(JobError::ShuttingDown);
+            }
             // Cancellation does not notify; poll it while waiting.
             s = self
                 .wake
@@ -180,6 +187,8 @@ impl Scheduler {
     /// Refuses new work from now on ([`JobError::ShuttingDown`]).
     pub fn shut_down(&self) {
         self.lock().shutting_down = true;
+        // Waiting jobs that never started give up their places now.
+        self.wake.notify_all();
     }
 }
 

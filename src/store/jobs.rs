@@ -319,6 +319,24 @@ impl Store {
         Ok(job)
     }
 
+    /// The job an `Idempotency-Key` made, if any.
+    pub async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
+        check_label("idempotency_key", key)?;
+        let mut conn = self.inner.reader.acquire().await?;
+        let row = sqlx::query(concat!(
+            "SELECT ",
+            job_cols!(),
+            " FROM jobs WHERE idempotency_key = ?"
+        ))
+        .bind(key)
+        .fetch_optional(&mut *conn)
+        .await?;
+        match row {
+            Some(row) => Ok(Some(with_frames(&mut conn, &row).await?)),
+            None => Ok(None),
+        }
+    }
+
     /// Cancels a queued or running job; its record stays, as `cancelled`, until it expires
     /// or is deleted. Cancelling an ended job is a [`StoreError::Conflict`].
     pub async fn cancel_job(&self, id: &str) -> Result<JobRecord> {

@@ -1133,7 +1133,10 @@ async fn gc_keeps_what_a_running_job_has_written_however_old() {
         &store.blob_path(frame.as_str()).await.unwrap(),
         Duration::from_secs(7200),
     );
-    let stale = store.put_blob(b"from before the job".to_vec()).await.unwrap();
+    let stale = store
+        .put_blob(b"from before the job".to_vec())
+        .await
+        .unwrap();
     age(
         &store.blob_path(stale.as_str()).await.unwrap(),
         Duration::from_secs(4 * 3600),
