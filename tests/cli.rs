@@ -269,6 +269,62 @@ fn outputs_never_overwrite_inputs_and_rays_may_come_from_a_pipe() {
     assert!(!names.iter().any(|n| n.ends_with(".tmp")), "{names:?}");
 }
 
+/// A ray whose direction is so small that its t overflows never reports a hit at
+/// t = +inf (contract §2: +inf is a miss), on either test, closest or any.
+#[test]
+fn no_hit_is_reported_at_an_infinite_t() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = quad_scene(dir.path());
+    let rays = dir.path().join("tiny.ray");
+    let tiny = |d: f32| Ray {
+        org: [0.25, 0.25, 5.0],
+        tmin: 0.0,
+        dir: [0.0, 0.0, -d],
+        tmax: f32::INFINITY,
+    };
+    std::fs::write(
+        &rays,
+        write_rays(&[tiny(1e-45), tiny(1e-40), tiny(1e-38), tiny(1.0)]),
+    )
+    .unwrap();
+    for precision in ["watertight", "fast"] {
+        for accel in ["brute", "mbvh8", "dacrt"] {
+            for (query, hit) in [("closest", "t_prim_uv"), ("any", "occluded")] {
+                let out = dir.path().join("tiny.hit");
+                let (ok, _, err) = rayd(&[
+                    "trace",
+                    p(&scene),
+                    "--rays",
+                    p(&rays),
+                    "--out",
+                    p(&out),
+                    "--query",
+                    query,
+                    "--hit",
+                    hit,
+                    "--accel",
+                    accel,
+                    "--precision",
+                    precision,
+                ]);
+                assert!(ok, "{err}");
+                let (_, hits) = read_hits(&std::fs::read(&out).unwrap()).unwrap();
+                for (i, h) in hits.iter().enumerate() {
+                    // t = 5 / d overflows to +inf for the three tiny directions: misses.
+                    assert_eq!(
+                        h.is_hit(),
+                        i == 3,
+                        "{precision} {accel} {query} ray {i}: {h:?}"
+                    );
+                    if query == "closest" {
+                        assert_eq!(h.t.is_finite(), h.is_hit(), "{precision} {accel} ray {i}");
+                    }
+                }
+            }
+        }
+    }
+}
+
 /// Sizes past the limits are refused by name before anything is allocated, options that
 /// would be ignored are refused, and negative numbers are values.
 #[test]

@@ -413,7 +413,10 @@ impl Ray1Sink {
                     break;
                 }
                 self.partial_len = 0;
-                let ray: Ray = bytemuck::pod_read_unaligned(&self.partial);
+                let mut ray: Ray = bytemuck::pod_read_unaligned(&self.partial);
+                if cfg!(target_endian = "little") {
+                    ray.bound_tmax();
+                }
                 self.valid &= ray.is_valid();
                 self.rays.push(ray);
             } else {
@@ -434,10 +437,12 @@ impl Ray1Sink {
                 );
                 // Checked while the piece is still in cache (little-endian: the bytes are the
                 // rays; big-endian swaps later, so it leaves the check to the consumer).
+                // Each +inf tmax is bounded here too ([`Ray::bound_tmax`]).
                 self.valid &= cfg!(target_endian = "little")
-                    && self.rays[from..]
-                        .iter()
-                        .fold(true, |all, r| all & r.is_valid());
+                    && self.rays[from..].iter_mut().fold(true, |all, r| {
+                        r.bound_tmax();
+                        all & r.is_valid()
+                    });
                 chunk = rest;
                 if whole == 0 && !chunk.is_empty() && self.rays.len() < seg {
                     let take = chunk.len().min(32);
@@ -705,7 +710,16 @@ mod tests {
         let bytes = write_rays(&r);
         assert_eq!(bytes.len(), 16 + 5 * 32);
         assert_eq!(&bytes[0..4], b"RAY1");
-        assert_eq!(read_rays(&bytes).unwrap(), r);
+        // Read back the same, but for a +inf tmax, bounded to the largest finite f32
+        // (`Ray::bound_tmax`: the same interval, and no hit at t = +inf).
+        let bounded: Vec<Ray> = r
+            .iter()
+            .map(|r| Ray {
+                tmax: r.tmax.min(f32::MAX),
+                ..*r
+            })
+            .collect();
+        assert_eq!(read_rays(&bytes).unwrap(), bounded);
     }
 
     #[test]

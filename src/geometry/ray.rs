@@ -130,7 +130,7 @@ impl Ray {
 
     /// Validates a batch. With `replace_invalid` every invalid ray is replaced by
     /// [`Ray::EMPTY`] (so it is answered as a miss) and the summary is still returned;
-    /// otherwise the rays are left untouched.
+    /// otherwise the rays are left untouched but for [`Ray::bound_tmax`].
     pub fn validate_batch(rays: &mut [Ray], replace_invalid: bool) -> Option<InvalidRays> {
         let mut summary: Option<InvalidRays> = None;
         // Almost every batch is valid: blocks that pass the branch-free test (which the
@@ -138,12 +138,29 @@ impl Ray {
         // ray by ray for the reason.
         const BLOCK: usize = 64;
         for (b, block) in rays.chunks_mut(BLOCK).enumerate() {
-            if block.iter().fold(true, |all, r| all & r.is_valid()) {
+            let valid = block.iter_mut().fold(true, |all, r| {
+                r.bound_tmax();
+                all & r.is_valid()
+            });
+            if valid {
                 continue;
             }
             Self::validate_slowly(block, b * BLOCK, replace_invalid, &mut summary);
         }
         summary
+    }
+
+    /// Makes a `tmax` of +inf the largest finite f32: the same interval for every finite
+    /// t, and no hit at t = +inf, which a test whose t overflows (a direction of 1e-40,
+    /// say) would otherwise report, against the contract's miss (t = +inf) and
+    /// `proto/semantics.md` (a hit's t is finite). Done once as rays are read (by the
+    /// RAY1 reader and [`Ray::validate_batch`]), so that no core tests for it. A NaN
+    /// `tmax` (an invalid ray) is left as it is.
+    #[inline]
+    pub fn bound_tmax(&mut self) {
+        if self.tmax == f32::INFINITY {
+            self.tmax = f32::MAX;
+        }
     }
 
     /// Whether [`Ray::check`] passes, computed without branches.

@@ -586,6 +586,12 @@ fn check_declared_size(scene: &Scene, uses: &[[bool; 2]]) -> Result<(), TextureE
             .with_guessed_format()
             .ok()
             .and_then(|r| r.into_dimensions().ok());
+        // An image over one image's limits is the decoder's to refuse, by name.
+        let dims = dims.filter(|&(w, h)| {
+            w <= MAX_TEXTURE_SIDE
+                && h <= MAX_TEXTURE_SIDE
+                && u64::from(w) * u64::from(h) <= MAX_TEXTURE_PIXELS
+        });
         if let Some((w, h)) = dims {
             let p = u64::from(w) * u64::from(h);
             pixels = pixels.saturating_add(p.saturating_mul(n));
