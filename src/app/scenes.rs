@@ -472,10 +472,8 @@ impl App {
     }
 
     /// The first half of a geometry update: the TRI1 `body` checked against scene `id`,
-    /// parsed, and its bytes made durable as a blob, with no version recorded yet. A frame
-    /// stages its positions while its rays arrive and records them
-    /// ([`App::commit_geometry`]) only once those are in and sound.
-    pub async fn stage_geometry(
+    /// parsed, and its bytes made durable as a blob, with no version recorded yet.
+    async fn stage_geometry(
         &self,
         id: &str,
         body: bytes::Bytes,
@@ -511,7 +509,7 @@ impl App {
 
     /// Records staged positions as scene `id`'s next version (one transaction) and keeps
     /// them in memory for the traces that follow; returns the version.
-    pub async fn commit_geometry(&self, id: &str, staged: StagedGeometry) -> Result<i64, AppError> {
+    async fn commit_geometry(&self, id: &str, staged: StagedGeometry) -> Result<i64, AppError> {
         let StagedGeometry {
             loaded,
             tris,
@@ -535,26 +533,6 @@ impl App {
             Arc::new(loaded.scene.cameras.clone()),
         );
         Ok(version)
-    }
-
-    /// With `invalid=error`, refuses a batch holding a bad ray now (the search runs on the
-    /// pool): a frame checks its rays before its positions become a version. Rays the
-    /// reader vouched for are not read again.
-    pub async fn refuse_bad_rays(
-        &self,
-        rays: RaySegment,
-        policy: crate::jobs::InvalidPolicy,
-    ) -> Result<RaySegment, AppError> {
-        if policy != crate::jobs::InvalidPolicy::Error || rays.all_valid {
-            return Ok(rays);
-        }
-        let checked = self
-            .cpu(move || {
-                let mut rays = rays;
-                trace::validate_read(&mut rays, policy).map(|_| rays)
-            })
-            .await?;
-        Ok(checked?)
     }
 
     /// Deletes the old versions that jobs kept until they ended (see
@@ -734,7 +712,7 @@ impl App {
 
 /// Positions checked, parsed and stored as a blob, not yet a version
 /// ([`App::stage_geometry`]).
-pub struct StagedGeometry {
+struct StagedGeometry {
     loaded: Arc<Loaded>,
     tris: Vec<Triangle>,
     body: bytes::Bytes,

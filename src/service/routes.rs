@@ -389,17 +389,54 @@ async fn trace(
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
     let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
+    let (hits, report) = traced_body(
+        &app,
+        &state,
+        &id,
+        &params,
+        &mut reader,
+        declared,
+        bytes::Bytes::new(),
+        0,
+    )
+    .await?;
+    drop(reader);
+    Ok(hits_response(&state, hits, &report))
+}
+
+/// Reads a RAY1 body (`declared` bytes long, if said), of which `first` has arrived, and
+/// traces it: the rays land in their final memory as the body arrives, and go to the
+/// trace in pieces if it can start before the body ends. Byte offsets in errors are
+/// shifted by `offset` (where the RAY1 document starts in the request's body).
+#[allow(clippy::too_many_arguments)]
+async fn traced_body(
+    app: &App,
+    state: &AppState,
+    id: &str,
+    params: &TraceParams,
+    reader: &mut BodyReader,
+    declared: Option<u64>,
+    first: bytes::Bytes,
+    offset: u64,
+) -> Result<(crate::jobs::HitBody, crate::jobs::TraceReport), ApiError> {
+    let ray_error = |e: BinaryError| {
+        let at = e.byte_offset();
+        let api = binary_error(e);
+        match at {
+            Some(o) if offset > 0 => api.with("byte_offset", o + offset),
+            _ => api,
+        }
+    };
     let announced = declared
         .and_then(|len| len.checked_sub(16))
         .filter(|records| records % 32 == 0)
         .map(|records| (records / 32) as usize);
-    let mut intake = app.begin_trace(&id, &params, announced).await?;
-    // The rays land in their final memory as the body arrives, and go to the trace in
-    // pieces if it can start before the body ends.
+    let mut intake = app.begin_trace(id, params, announced).await?;
     let mut sink = Ray1Sink::new(state.config.max_rays as usize, declared);
     if let Some(n) = intake.segment_rays() {
         sink = sink.segmented(n);
     }
+    sink.push(&first).map_err(ray_error)?;
     // The body's arrival is timed from its first piece to its last (the bytes after the
     // first), so that `auto` learns how fast bodies come.
     let mut arrival: Option<(std::time::Instant, u64)> = None;
@@ -408,7 +445,7 @@ async fn trace(
             None => arrival = Some((std::time::Instant::now(), 0)),
             Some((_, bytes)) => *bytes += chunk.len() as u64,
         }
-        sink.push(&chunk).map_err(binary_error)?;
+        sink.push(&chunk).map_err(ray_error)?;
         for rays in sink.take_ready() {
             intake.send(rays);
         }
@@ -416,10 +453,8 @@ async fn trace(
     if let Some((first, bytes)) = arrival {
         app.note_upload(bytes, first.elapsed().as_secs_f64());
     }
-    let rays = sink.finish_segment().map_err(binary_error)?;
-    let (hits, report) = intake.finish(rays).await?;
-    drop(reader);
-    Ok(hits_response(&state, hits, &report))
+    let rays = sink.finish_segment().map_err(ray_error)?;
+    Ok(intake.finish(rays).await?)
 }
 
 /// A synchronous trace's answer: the HIT1 body, what ran, and its timings.
@@ -502,44 +537,32 @@ async fn frame(
             len: tri.len(),
         }));
     }
-    // The rays arrive while the positions are parsed and written; the rays' byte offsets
-    // are the frame body's.
-    let ray_error = |e: BinaryError| {
-        let api = binary_error(e.clone());
-        match e.byte_offset() {
-            Some(o) => api.with("byte_offset", o + tri_len as u64),
-            None => api,
-        }
-    };
-    let read_rays = async {
-        if tri.len() < tri_len {
-            return Err(ApiError::bad_request(format!(
-                "the frame's body ends in its positions: {} of the {tri_len} bytes of {triangles} triangles",
-                tri.len()
-            ))
-            .with("byte_offset", tri.len() as u64));
-        }
-        let mut sink = Ray1Sink::new(
-            state.config.max_rays as usize,
-            declared.and_then(|n| n.checked_sub(tri_len as u64)),
-        );
-        sink.push(&rest).map_err(ray_error)?;
-        while let Some(chunk) = reader.next_chunk().await? {
-            sink.push(&chunk).map_err(ray_error)?;
-        }
-        sink.finish_segment().map_err(ray_error)
-    };
-    let staged = app.stage_geometry(&id, tri.clone().freeze());
-    let (staged, rays) = tokio::join!(staged, read_rays);
-    let rays = rays?;
-    let staged = staged?;
-    // Nothing is recorded for a frame whose rays are refused.
-    let rays = app.refuse_bad_rays(rays, params.invalid).await?;
-    let version = app.commit_geometry(&id, staged).await?;
-    let intake = app
-        .begin_trace(&id, &params.trace(version as u32), None)
-        .await?;
-    let (hits, report) = intake.finish(rays).await?;
+    if tri.len() < tri_len {
+        return Err(ApiError::bad_request(format!(
+            "the frame's body ends in its positions: {} of the {tri_len} bytes of {triangles} triangles",
+            tri.len()
+        ))
+        .with("byte_offset", tri.len() as u64));
+    }
+    // The positions become the next version first, as a `PUT` would make it, while the
+    // rays go on arriving into the connection's buffers; then the rays are read and traced
+    // against it as a trace's are (piece by piece as they come, where the core allows).
+    let version = app.update_geometry(&id, tri.freeze()).await?;
+    let params = params.trace(version as u32);
+    let traced = traced_body(
+        &app,
+        &state,
+        &id,
+        &params,
+        &mut reader,
+        declared.and_then(|n| n.checked_sub(tri_len as u64)),
+        rest,
+        tri_len as u64,
+    )
+    .await;
+    // A frame refused for its rays has made its version all the same: the problem says
+    // which.
+    let (hits, report) = traced.map_err(|e| e.with("version", version))?;
     drop(reader);
     let mut resp = hits_response(&state, hits, &report);
     resp.headers_mut()

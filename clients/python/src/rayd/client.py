@@ -469,9 +469,10 @@ class Scene:
     ) -> Hits:
         """New positions for every triangle and a trace against them, in one request
         (``POST …/frame``): what :meth:`update_geometry` then :meth:`trace` do, with one
-        round trip, the update's durable write hidden under the rays' upload. The new
-        version is ``hits.version`` (and this scene's :attr:`version`); a refused frame
-        makes none. Arguments as :meth:`update_geometry`'s and :meth:`trace`'s."""
+        round trip. The new version is ``hits.version`` (and this scene's
+        :attr:`version`); a frame refused for its positions makes none, one refused for
+        its rays has made it (the problem's ``version``). Arguments as
+        :meth:`update_geometry`'s and :meth:`trace`'s."""
         params = self._trace_params(query, hit, accel, None, None, build, precision, invalid)
         del params["version"], params["time"]
         tri = formats.encode_triangles(triangles)
