@@ -316,6 +316,20 @@ fn the_service_end_to_end() {
     assert_eq!(r.status, 404);
     let r = s.req("GET", "/v1/scenes/..%2F..%2Fetc", &[], &[]);
     assert_eq!(r.status, 404);
+    // A query parameter a route does not take is 400 naming it, on every route.
+    for path in [
+        format!("/v1/scenes/{id}?versoin=2"),
+        format!("/v1/scenes/{id}/thumbnail?versoin=2"),
+    ] {
+        let r = s.req("GET", &path, &[], &[]);
+        assert_eq!(
+            r.status,
+            400,
+            "{path}: {}",
+            String::from_utf8_lossy(&r.body)
+        );
+        assert_eq!(r.json()["field"], "versoin", "{path}");
+    }
     let r = s.req(
         "POST",
         "/v1/scenes",
@@ -626,6 +640,17 @@ fn the_service_end_to_end() {
     assert!(kept >= seen && kept < 1.0, "seen {seen}, kept {kept}");
     let r = s.req("GET", &format!("/v1/jobs/{long}/result"), &[], &[]);
     assert_eq!(r.status, 409);
+    for path in [
+        format!("/v1/jobs/{long}?x=1"),
+        format!("/v1/jobs/{long}/events?x=1"),
+    ] {
+        let r = s.req("GET", &path, &[], &[]);
+        assert_eq!(
+            (r.status, r.json()["field"].as_str()),
+            (400, Some("x")),
+            "{path}"
+        );
+    }
 
     // Persistence across a restart: scenes, versions and results.
     s.stop();

@@ -76,7 +76,8 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_DEMO", value_parser = clap::builder::BoolishValueParser::new())]
     pub demo: bool,
 
-    /// Seconds that a finished job's result is kept (1 day).
+    /// Seconds that a finished job's result is kept (1 day); 0 keeps results until they
+    /// are deleted.
     #[arg(long, env = "RAYD_RESULT_TTL", default_value_t = 86_400)]
     pub result_ttl: u64,
 

@@ -247,6 +247,7 @@ async fn list_scenes(
 async fn get_scene(
     Extension(app): Extension<App>,
     ApiPath(id): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     Ok(Json(app.scene(&id).await?).into_response())
 }
@@ -259,6 +260,7 @@ const THUMBNAIL_WAIT: Duration = Duration::from_secs(5);
 async fn thumbnail(
     Extension(app): Extension<App>,
     ApiPath(id): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     match app.thumbnail(&id, THUMBNAIL_WAIT).await? {
         Thumbnail::Png(png) => {
@@ -284,6 +286,7 @@ async fn thumbnail(
 async fn delete_scene(
     Extension(app): Extension<App>,
     ApiPath(id): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     app.delete_scene(&id).await?;
     Ok(StatusCode::NO_CONTENT.into_response())
@@ -617,6 +620,7 @@ async fn list_jobs(
 async fn get_job(
     Extension(app): Extension<App>,
     ApiPath(job): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     Ok(Json(app.job(&job).await?).into_response())
 }
@@ -625,6 +629,7 @@ async fn get_job(
 async fn delete_job(
     Extension(app): Extension<App>,
     ApiPath(job): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     Ok(match app.cancel_or_delete(&job).await? {
         Some(view) => Json(view).into_response(),
@@ -638,6 +643,7 @@ async fn job_events(
     State(state): State<AppState>,
     Extension(app): Extension<App>,
     ApiPath(job): ApiPath<String>,
+    ApiQuery(NoQuery {}): ApiQuery<NoQuery>,
 ) -> Result<Response, ApiError> {
     let events = app.job_events(&job).await?;
     let shutdown = state.shutdown.clone();
