@@ -462,31 +462,11 @@ impl App {
 
     /// Stores new positions for every triangle of scene `id` as its next version.
     pub async fn update_geometry(&self, id: &str, body: bytes::Bytes) -> Result<i64, AppError> {
-        let staged = self.stage_geometry(id, body).await?;
-        self.commit_geometry(id, staged).await
-    }
-
-    /// The triangle count of scene `id`: what a geometry update must give.
-    pub async fn triangle_count(&self, id: &str) -> Result<usize, AppError> {
-        Ok(self.loaded(id).await?.static_pose.len())
-    }
-
-    /// The first half of a geometry update: the TRI1 `body` checked against scene `id`,
-    /// parsed, and its bytes made durable as a blob, with no version recorded yet.
-    async fn stage_geometry(
-        &self,
-        id: &str,
-        body: bytes::Bytes,
-    ) -> Result<StagedGeometry, AppError> {
         let loaded = self.loaded(id).await?;
         let expected = loaded.static_pose.len();
-        let bad = |e: crate::formats::binary::BinaryError| AppError::BadUpload {
-            detail: e.to_string(),
-            byte_offset: e.byte_offset(),
-        };
         // Header and length first, reading no record: a malformed body, or one for
         // another scene, is refused before any work.
-        let count = tri_count(&body).map_err(bad)?;
+        let count = tri_count(&body).map_err(bad_positions)?;
         if count != expected {
             return Err(wrong_count(id, count as u64, expected));
         }
@@ -498,25 +478,8 @@ impl App {
             self.cpu(move || read_tri(&b)),
             self.store().put_blob(body.clone())
         );
-        let tris = tris?.map_err(bad)?;
-        Ok(StagedGeometry {
-            loaded,
-            tris,
-            body,
-            blob: blob?,
-        })
-    }
-
-    /// Records staged positions as scene `id`'s next version (one transaction) and keeps
-    /// them in memory for the traces that follow; returns the version.
-    async fn commit_geometry(&self, id: &str, staged: StagedGeometry) -> Result<i64, AppError> {
-        let StagedGeometry {
-            loaded,
-            tris,
-            body,
-            blob,
-        } = staged;
-        let (record, pruned) = match self.store().add_version(id, &blob).await {
+        let tris = tris?.map_err(bad_positions)?;
+        let (record, pruned) = match self.store().add_version(id, &blob?).await {
             Err(StoreError::NotFound { what: "blob", .. }) => {
                 stored_then_recorded(self.store(), body, |store, blob| async move {
                     store.add_version(id, &blob).await
@@ -533,6 +496,23 @@ impl App {
             Arc::new(loaded.scene.cameras.clone()),
         );
         Ok(version)
+    }
+
+    /// The triangle count of scene `id`: what a geometry update must give.
+    pub async fn triangle_count(&self, id: &str) -> Result<usize, AppError> {
+        Ok(self.loaded(id).await?.static_pose.len())
+    }
+
+    /// Checks the header (first 16 bytes) of a geometry update for scene `id` before its
+    /// records arrive, as [`App::update_geometry`] checks a whole body: malformed is 400,
+    /// another triangle count 422.
+    pub async fn check_positions_header(&self, id: &str, header: &[u8]) -> Result<(), AppError> {
+        let count = crate::formats::binary::tri_header_count(header).map_err(bad_positions)?;
+        let expected = self.triangle_count(id).await?;
+        if count != expected {
+            return Err(wrong_count(id, count as u64, expected));
+        }
+        Ok(())
     }
 
     /// Deletes the old versions that jobs kept until they ended (see
@@ -710,15 +690,6 @@ impl App {
     }
 }
 
-/// Positions checked, parsed and stored as a blob, not yet a version
-/// ([`App::stage_geometry`]).
-struct StagedGeometry {
-    loaded: Arc<Loaded>,
-    tris: Vec<Triangle>,
-    body: bytes::Bytes,
-    blob: BlobId,
-}
-
 /// A synchronous trace's place in the queue, ahead of every job, taken when it can start
 /// (see [`App::trace_has_room`]).
 fn admit_sync_trace(engine: &crate::jobs::Engine) -> Result<sched::Ticket, AppError> {
@@ -742,6 +713,14 @@ fn on_trace_thread(
         })
         .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
     Ok(done)
+}
+
+/// A geometry update's TRI1 body that does not read (400, naming its byte).
+fn bad_positions(e: crate::formats::binary::BinaryError) -> AppError {
+    AppError::BadUpload {
+        detail: e.to_string(),
+        byte_offset: e.byte_offset(),
+    }
 }
 
 fn wrong_count(id: &str, got: u64, expected: usize) -> AppError {

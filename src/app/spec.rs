@@ -47,41 +47,6 @@ impl TraceParams {
     }
 }
 
-/// The frame route's query string: the trace's options. A frame traces the positions it
-/// brings (a new version), so it takes no `version` or `time`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct FrameParams {
-    /// `closest` or `any`.
-    pub query: Query,
-    /// Hit fields to return.
-    pub hit: HitFormat,
-    /// Accelerator.
-    pub accel: AccelKind,
-    /// Build quality.
-    pub build: BuildQuality,
-    /// Ray/triangle test.
-    pub precision: Precision,
-    /// What to do with invalid rays.
-    pub invalid: InvalidPolicy,
-}
-
-impl FrameParams {
-    /// The trace of geometry version `version`.
-    pub fn trace(&self, version: u32) -> TraceParams {
-        TraceParams {
-            query: self.query,
-            hit: self.hit,
-            accel: self.accel,
-            build: self.build,
-            precision: self.precision,
-            time: None,
-            version: Some(version),
-            invalid: self.invalid,
-        }
-    }
-}
-
 /// Animation times of a render: `start + k·step` up to `end` (contract §4).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -248,14 +248,9 @@ fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
 /// A path argument.
 type PathArg = PathBuf;
 
-/// Most threads a command or the service may ask for: far past any machine this runs on,
-/// and short of what makes a pool of threads the request's own undoing (10,000 took
-/// minutes to start for three rays).
-pub const MAX_THREADS: u64 = 1024;
-
-/// `--threads`' parser: 0 (all cores) to [`MAX_THREADS`].
+/// `--threads`' parser: 0 (all cores) to [`crate::jobs::MAX_THREADS`].
 fn threads_arg() -> clap::builder::RangedU64ValueParser<usize> {
-    clap::builder::RangedU64ValueParser::<usize>::new().range(0..=MAX_THREADS)
+    clap::builder::RangedU64ValueParser::<usize>::new().range(0..=crate::jobs::MAX_THREADS)
 }
 
 /// Refuses an output path that is one of the command's inputs, through whatever path

@@ -151,13 +151,16 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         )
     };
     let pattern = a.out.display().to_string();
-    for k in 0..times.len() {
-        let out = if a.frames.is_some() {
+    // Frame `k`'s file: the pattern's name for it in a sequence, else the pattern.
+    let out_of = |k: usize| {
+        if a.frames.is_some() {
             frame_name(&pattern, k)
         } else {
             pattern.clone()
-        };
-        super::refuse_overwriting(out.as_ref(), &[&a.scene])?;
+        }
+    };
+    for k in 0..times.len() {
+        super::refuse_overwriting(out_of(k).as_ref(), &[&a.scene])?;
     }
     let mut written = Vec::new();
     let report = engine.render(
@@ -166,11 +169,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         &frame_at,
         &engine.detached(),
         &mut |k, bytes| {
-            let out = if a.frames.is_some() {
-                frame_name(&pattern, k)
-            } else {
-                pattern.clone()
-            };
+            let out = out_of(k);
             super::write_whole(out.as_ref(), &bytes).map_err(|source| {
                 crate::jobs::JobError::Geometry(
                     FormatError::Io {

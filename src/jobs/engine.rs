@@ -11,6 +11,11 @@ use crate::accel::auto::{self, Geometry as Known};
 use crate::accel::dacrt::DacrtTuning;
 use crate::accel::{AccelKind, BuildOptions, BuildQuality, Intersector, Precision};
 
+/// Most pool threads a command or the service may ask for (`--threads`): far past any
+/// machine this runs on, and short of what makes starting the pool the request's own
+/// undoing (10,000 threads took over a minute to start for three rays).
+pub const MAX_THREADS: u64 = 1024;
+
 /// How to make an [`Engine`].
 #[derive(Clone, Copy, Debug)]
 pub struct EngineOptions {

@@ -33,7 +33,8 @@ pub struct ServeArgs {
 
     /// Threads for tracing and rendering; 0: all cores (at most 1024).
     #[arg(long, env = "RAYD_THREADS", default_value_t = 0,
-          value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(0..=1024))]
+          value_parser = clap::builder::RangedU64ValueParser::<usize>::new()
+              .range(0..=crate::jobs::MAX_THREADS))]
     pub threads: usize,
 
     /// Jobs of every kind that may wait; past this, new work is answered 503.

@@ -19,9 +19,9 @@ use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
 use crate::app::{
-    App, AppError, FrameParams, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
+    App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
 };
-use crate::formats::binary::{ray_count, tri_header_count, BinaryError, Ray1Sink, HEADER_BYTES};
+use crate::formats::binary::{ray_count, BinaryError, Ray1Sink, HEADER_BYTES};
 use crate::jobs::JobError;
 use crate::store::StoreError;
 
@@ -145,7 +145,12 @@ fn job_error(e: JobError) -> ApiError {
 }
 
 fn binary_error(e: BinaryError) -> ApiError {
-    let offset = e.byte_offset();
+    binary_error_at(e, 0)
+}
+
+/// [`binary_error`] of a document that starts `start` bytes into the request's body.
+fn binary_error_at(e: BinaryError, start: u64) -> ApiError {
+    let offset = e.byte_offset().map(|o| o + start);
     let err = match &e {
         BinaryError::TooMany { limit, .. } => ApiError::payload_too_large(e.to_string(), *limit),
         _ => ApiError::bad_request(e.to_string()),
@@ -349,6 +354,14 @@ async fn get_geometry(
     Ok(resp)
 }
 
+/// The body's length as `Content-Length` announces it, if it does.
+fn content_length(headers: &HeaderMap) -> Option<u64> {
+    headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok())
+}
+
 /// Whether the client asked for an asynchronous answer (RFC 7240 `Prefer: respond-async`).
 fn prefers_async(headers: &HeaderMap) -> bool {
     headers.get_all("prefer").iter().any(|v| {
@@ -387,10 +400,7 @@ async fn trace(
     // A full queue answers at once, before the body is read; the trace takes its place
     // in the queue only when it can start (`App::begin_trace`).
     app.trace_has_room()?;
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
+    let declared = content_length(&headers);
     let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
     let (hits, report) = traced_body(
         &app,
@@ -422,14 +432,7 @@ async fn traced_body(
     first: bytes::Bytes,
     offset: u64,
 ) -> Result<(crate::jobs::HitBody, crate::jobs::TraceReport), ApiError> {
-    let ray_error = |e: BinaryError| {
-        let at = e.byte_offset();
-        let api = binary_error(e);
-        match at {
-            Some(o) if offset > 0 => api.with("byte_offset", o + offset),
-            _ => api,
-        }
-    };
+    let ray_error = |e| binary_error_at(e, offset);
     let announced = declared
         .and_then(|len| len.checked_sub(16))
         .filter(|records| records % 32 == 0)
@@ -487,25 +490,33 @@ fn hits_response(
 
 /// `POST /v1/scenes/{id}/frame`: a geometry update and a trace of it in one request, for a
 /// client that sends new positions every frame. The body is the update's TRI1 document
-/// followed by the trace's RAY1 document. The positions are parsed and made durable while
-/// the rays arrive, recorded as the next version once the rays are in and sound, and the
-/// rays are traced against them: one round trip, and the update's writes hidden under the
-/// rays' upload. The answer is the trace's, plus `X-Rayd-Version`.
+/// followed by the trace's RAY1 document. The positions become the next version as a `PUT`
+/// makes it while the rays go on arriving, then the rays are traced against it as a
+/// trace's are. The answer is the trace's, plus `X-Rayd-Version`.
 async fn frame(
     State(state): State<AppState>,
     Extension(app): Extension<App>,
     ApiPath(id): ApiPath<String>,
-    ApiQuery(params): ApiQuery<FrameParams>,
+    ApiQuery(params): ApiQuery<TraceParams>,
     headers: HeaderMap,
     body: Body,
 ) -> Result<Response, ApiError> {
     media_type(&headers, &[FRAME])?;
+    // The trace's options, but not which geometry: a frame traces the version it makes.
+    for (field, given) in [
+        ("version", params.version.is_some()),
+        ("time", params.time.is_some()),
+    ] {
+        if given {
+            return Err(ApiError::bad_request(format!(
+                "{field}: a frame traces the version its positions make"
+            ))
+            .with_field(field));
+        }
+    }
     let triangles = app.triangle_count(&id).await?;
     app.trace_has_room()?;
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
+    let declared = content_length(&headers);
     let mut reader = BodyReader::new(body, state.config.max_body, &state.bodies).await?;
     // The positions, whole: the header is checked as soon as it is in, so a body for
     // another scene is refused before the rest is read.
@@ -521,16 +532,8 @@ async fn frame(
         tri.extend_from_slice(&chunk.split_to(take));
         rest = chunk;
         if had < HEADER_BYTES && tri.len() >= HEADER_BYTES {
-            let count = tri_header_count(&tri[..HEADER_BYTES]).map_err(binary_error)?;
-            if count != triangles {
-                return Err(AppError::Unprocessable {
-                    field: "count",
-                    detail: format!(
-                        "the frame's positions are {count} triangles but scene {id} has {triangles}: a frame gives new positions for every triangle, same ids"
-                    ),
-                }
-                .into());
-            }
+            app.check_positions_header(&id, &tri[..HEADER_BYTES])
+                .await?;
             tri.reserve(tri_len - tri.len());
         }
     }
@@ -551,7 +554,10 @@ async fn frame(
     // rays go on arriving into the connection's buffers; then the rays are read and traced
     // against it as a trace's are (piece by piece as they come, where the core allows).
     let version = app.update_geometry(&id, tri.freeze()).await?;
-    let params = params.trace(version as u32);
+    let params = TraceParams {
+        version: Some(version as u32),
+        ..params
+    };
     let traced = traced_body(
         &app,
         &state,

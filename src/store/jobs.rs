@@ -24,6 +24,22 @@ macro_rules! job_cols {
     };
 }
 
+/// The job `key` made, with its frames, on `conn` (a transaction's or a reader's).
+async fn job_by_key(conn: &mut SqliteConnection, key: &str) -> Result<Option<JobRecord>> {
+    let row = sqlx::query(concat!(
+        "SELECT ",
+        job_cols!(),
+        " FROM jobs WHERE idempotency_key = ?"
+    ))
+    .bind(key)
+    .fetch_optional(&mut *conn)
+    .await?;
+    match row {
+        Some(row) => Ok(Some(with_frames(conn, &row).await?)),
+        None => Ok(None),
+    }
+}
+
 /// Attaches a job's frame results (only succeeded jobs have any).
 async fn with_frames(conn: &mut SqliteConnection, row: &SqliteRow) -> Result<JobRecord> {
     let mut job = job_from_row(row)?;
@@ -68,16 +84,7 @@ impl Store {
         let mut conn = self.inner.writer.acquire().await?;
         let mut tx = sqlx::Connection::begin(&mut *conn).await?;
         if let Some(key) = &new.idempotency_key {
-            let row = sqlx::query(concat!(
-                "SELECT ",
-                job_cols!(),
-                " FROM jobs WHERE idempotency_key = ?"
-            ))
-            .bind(key)
-            .fetch_optional(&mut *tx)
-            .await?;
-            if let Some(row) = row {
-                let job = with_frames(&mut tx, &row).await?;
+            if let Some(job) = job_by_key(&mut tx, key).await? {
                 if job.kind != new.kind
                     || job.scene_id != new.scene_id
                     || job.version != new.version
@@ -323,18 +330,7 @@ impl Store {
     pub async fn job_by_idempotency_key(&self, key: &str) -> Result<Option<JobRecord>> {
         check_label("idempotency_key", key)?;
         let mut conn = self.inner.reader.acquire().await?;
-        let row = sqlx::query(concat!(
-            "SELECT ",
-            job_cols!(),
-            " FROM jobs WHERE idempotency_key = ?"
-        ))
-        .bind(key)
-        .fetch_optional(&mut *conn)
-        .await?;
-        match row {
-            Some(row) => Ok(Some(with_frames(&mut conn, &row).await?)),
-            None => Ok(None),
-        }
+        job_by_key(&mut conn, key).await
     }
 
     /// Cancels a queued or running job; its record stays, as `cancelled`, until it expires

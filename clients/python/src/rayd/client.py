@@ -371,9 +371,12 @@ class Scene:
         answer = self.client._json(
             "PUT", f"{self._path}/geometry", data=body, headers={"Content-Type": TRI_MEDIA}
         )
-        version = int(answer["version"])
+        return self._made_version(int(answer["version"]), body)
+
+    def _made_version(self, version: int, tri1) -> int:
+        """Notes ``version``, made from the TRI1 bytes ``tri1``: the latest, and known."""
         self.info["version"] = version
-        known = formats.decode_triangles(body)
+        known = formats.decode_triangles(tri1)
         known.flags.writeable = False
         self._known[(version, None)] = known
         return version
@@ -439,17 +442,21 @@ class Scene:
             raise TypeError(f"unknown trace parameters: {', '.join(params)}")
         return self._trace_body(body, n, full)
 
-    def _trace_body(self, body, n, params) -> Hits:
+    def _trace_body(self, body, n, params, route="trace", media=OCTET) -> Hits:
+        """POSTs ``body`` (``n`` rays, after whatever else ``route`` takes) to ``route``
+        and reads the HIT1 answer."""
         resp, answer = self.client._binary(
-            "POST", f"{self._path}/trace", params=params, data=body,
-            headers={"Content-Type": OCTET},
+            "POST", f"{self._path}/{route}", params=params, data=body,
+            headers={"Content-Type": media},
         )
         records = formats.decode_hits(answer, HIT_FORMATS[params["hit"]], n)
+        version = resp.headers.get("X-Rayd-Version")
         return Hits(
             answer,
             records,
             accel=resp.headers.get("X-Rayd-Accel"),
             server_timing=_server_timing(resp.headers.get("Server-Timing")),
+            version=None if version is None else int(version),
         )
 
     def frame(
@@ -473,27 +480,13 @@ class Scene:
         :attr:`version`); a frame refused for its positions makes none, one refused for
         its rays has made it (the problem's ``version``). Arguments as
         :meth:`update_geometry`'s and :meth:`trace`'s."""
+        # (`version` and `time` stay None, which requests leaves out of the query.)
         params = self._trace_params(query, hit, accel, None, None, build, precision, invalid)
-        del params["version"], params["time"]
         tri = formats.encode_triangles(triangles)
         rays = formats.encode_rays(origins, directions, tmin, tmax)
-        resp, answer = self.client._binary(
-            "POST", f"{self._path}/frame", params=params, data=tri + rays,
-            headers={"Content-Type": FRAME_MEDIA},
-        )
-        version = int(resp.headers["X-Rayd-Version"])
-        self.info["version"] = version
-        known = formats.decode_triangles(tri)
-        known.flags.writeable = False
-        self._known[(version, None)] = known
-        records = formats.decode_hits(answer, HIT_FORMATS[hit], (len(rays) - 16) // 32)
-        return Hits(
-            answer,
-            records,
-            accel=resp.headers.get("X-Rayd-Accel"),
-            server_timing=_server_timing(resp.headers.get("Server-Timing")),
-            version=version,
-        )
+        hits = self._trace_body(tri + rays, (len(rays) - 16) // 32, params, "frame", FRAME_MEDIA)
+        self._made_version(hits.version, tri)
+        return hits
 
     def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, *,
                     idempotency_key: str | None = None, **kw) -> Job:
