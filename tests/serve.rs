@@ -932,6 +932,48 @@ fn deleting_a_scene_stops_its_jobs() {
     }
 }
 
+/// `--max-running` bounds the jobs under way: a started render that yields between waves
+/// keeps its image, so a render of higher priority may not start beside it past the bound
+/// (it waits, queued, for the first to end), while the started one keeps running.
+#[test]
+fn started_jobs_are_bounded_whatever_their_priority() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--max-running", "1"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let state = |job: &str| {
+        s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json()["state"]
+            .as_str()
+            .unwrap()
+            .to_string()
+    };
+    let long = s.submit_render(
+        &id,
+        br#"{"width": 512, "height": 512, "spp": 1024, "bounces": 4, "integrator": "path", "priority": 10}"#,
+    );
+    let t0 = std::time::Instant::now();
+    while state(&long) != "running" {
+        assert!(t0.elapsed().as_secs() < 30, "the render did not start");
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let urgent = s.submit_render(&id, br#"{"width": 8, "height": 8, "priority": 90}"#);
+    // Longer than a wave (at most 0.5 s), after which it would have started unbounded.
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    assert_eq!(state(&urgent), "queued");
+    assert_eq!(state(&long), "running");
+    let m = Metrics::scrape(&s);
+    assert_eq!(
+        (m.get("rayd_jobs_running"), m.get("rayd_jobs_queued")),
+        (1.0, 1.0)
+    );
+    assert_eq!(
+        s.req("DELETE", &format!("/v1/jobs/{long}"), &[], &[])
+            .status,
+        200
+    );
+    assert_eq!(wait_job(&s, &urgent, 30)["state"], "succeeded");
+}
+
 /// A synchronous trace takes its place in the queue when it can start, not while its
 /// body is still on the way: two uploads that stall after their first bytes leave a queue
 /// of two free for a render.

@@ -261,6 +261,7 @@ impl Service {
                     cache_bytes: 64 << 20,
                     texture_bytes: 64 << 20,
                     max_queued: 8,
+                    max_running: 2,
                     limits: rayd::jobs::Limits {
                         max_rays: 4096,
                         max_pixels: 4096,

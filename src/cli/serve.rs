@@ -51,6 +51,7 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         cache_bytes: config.cache_bytes as usize,
         texture_bytes: config.texture_bytes as usize,
         max_queued: config.max_queued,
+        max_running: config.max_running,
         limits: crate::jobs::Limits {
             max_rays: config.max_rays as usize,
             max_pixels: config.max_pixels,

@@ -27,6 +27,8 @@ pub struct EngineOptions {
     pub texture_bytes: usize,
     /// Jobs that may wait to start before new work is refused.
     pub max_queued: usize,
+    /// Jobs (synchronous traces aside) that may have started and not finished at once.
+    pub max_running: usize,
     /// Bounds every request must fit in.
     pub limits: Limits,
     /// DACRT settings for every build.
@@ -40,11 +42,17 @@ impl Default for EngineOptions {
             cache_bytes: 2 << 30,
             texture_bytes: 1 << 30,
             max_queued: 64,
+            max_running: DEFAULT_MAX_RUNNING,
             limits: Limits::default(),
             tuning: DacrtTuning::default(),
         }
     }
 }
+
+/// Jobs that may be under way at once by default (`rayd serve --max-running`): enough that
+/// a high-priority render can overtake a few long ones, few enough that their images and
+/// paths fit in memory together.
+pub const DEFAULT_MAX_RUNNING: usize = 4;
 
 /// How a job over moved geometry gets its BVH when a structure over other positions of the
 /// same scene is cached: the cost model's choice, always a refit, or always a new build.
@@ -130,7 +138,7 @@ impl Engine {
             cache: StructureCache::new(options.cache_bytes),
             textures: TextureCache::new(options.texture_bytes),
             lights: LightCache::new(LIGHT_TABLE_BYTES),
-            sched: Scheduler::new(options.max_queued),
+            sched: Scheduler::new(options.max_queued, options.max_running),
             options,
             upload_cost: AtomicU64::new((1.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).to_bits()),
         })

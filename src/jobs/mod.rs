@@ -21,7 +21,7 @@ pub mod trace;
 use std::sync::Arc;
 
 pub use control::{CancelToken, Control};
-pub use engine::{Engine, EngineOptions, Update, MAX_THREADS};
+pub use engine::{Engine, EngineOptions, Update, DEFAULT_MAX_RUNNING, MAX_THREADS};
 pub use render::{FrameTimes, RenderReport, RenderRequest};
 pub use trace::{HitBody, TraceReport, TraceRequest};
 

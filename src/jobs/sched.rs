@@ -14,8 +14,16 @@
 //! Waves are sized in seconds ([`Scheduler::wave_seconds`]): short while anything waits or
 //! an interactive request arrived within the last second (latency), long otherwise (DACRT
 //! and throughput like large batches).
+//!
+//! A job that yields between waves keeps what it has made so far (a render's image and
+//! its paths), so preemption has a memory price: left alone, a client sending renders of
+//! ever higher priority would have every one of them started at once. At most
+//! `max_running` jobs may therefore have started and not finished; a job past that waits
+//! for one to end, whatever its priority, while the started ones keep taking turns by
+//! theirs. Synchronous traces are not counted: the request-body budget bounds what they
+//! hold, and a waiting small request must still win the next wave.
 
-use std::collections::BTreeSet;
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -41,15 +49,28 @@ type Rank = (std::cmp::Reverse<u16>, u64);
 struct State {
     /// Whether a step holds the pool.
     held: bool,
-    /// Tickets waiting for the lease.
-    waiting: BTreeSet<Rank>,
+    /// Tickets waiting for the lease, with whether each may take it when it ranks first
+    /// (see [`Waiter`]).
+    waiting: BTreeMap<Rank, Waiter>,
     /// Admitted tickets that have not held a lease yet.
     queued: usize,
     /// Tickets that have held a lease and are not finished.
     running: usize,
+    /// Those of `running` that count against `max_running` (every job but synchronous
+    /// traces).
+    running_counted: usize,
     next_seq: u64,
     shutting_down: bool,
     last_interactive: Option<Instant>,
+}
+
+/// What the lease needs to know of a waiting ticket.
+#[derive(Clone, Copy)]
+struct Waiter {
+    /// It has held a lease before (its job is under way).
+    started: bool,
+    /// It counts against `max_running` once started.
+    counted: bool,
 }
 
 /// The queue and the lease (see the module docs).
@@ -57,16 +78,33 @@ pub struct Scheduler {
     state: Mutex<State>,
     wake: Condvar,
     max_queued: usize,
+    max_running: usize,
 }
 
 impl Scheduler {
-    /// A scheduler that admits at most `max_queued` jobs waiting to start.
-    pub fn new(max_queued: usize) -> Arc<Scheduler> {
+    /// A scheduler that admits at most `max_queued` jobs waiting to start and lets at most
+    /// `max_running` (at least 1) have started and not finished, synchronous traces aside.
+    pub fn new(max_queued: usize, max_running: usize) -> Arc<Scheduler> {
         Arc::new(Scheduler {
             state: Mutex::new(State::default()),
             wake: Condvar::new(),
             max_queued,
+            max_running: max_running.max(1),
         })
+    }
+
+    /// Whether `w` may take the lease now if it ranks first among those that may.
+    fn may_start(&self, s: &State, w: Waiter) -> bool {
+        w.started || !w.counted || s.running_counted < self.max_running
+    }
+
+    /// The waiting ticket that the free pool goes to: the first by rank among those that
+    /// may take it.
+    fn next(&self, s: &State) -> Option<Rank> {
+        s.waiting
+            .iter()
+            .find(|(_, w)| self.may_start(s, **w))
+            .map(|(r, _)| *r)
     }
 
     fn lock(&self) -> MutexGuard<'_, State> {
@@ -89,6 +127,7 @@ impl Scheduler {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
+            counted: priority != SYNC_PRIORITY,
         })
     }
 
@@ -120,22 +159,31 @@ impl Scheduler {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
+            counted: priority != SYNC_PRIORITY,
         }
     }
 
-    /// Waits until `ticket` ranks first among the waiting tickets and the pool is free,
-    /// then holds the pool until the lease is dropped. Fails if `cancel` fires while
+    /// Waits until `ticket` ranks first among the waiting tickets that may take the pool
+    /// (a job that has not started may not while `max_running` have), and the pool is
+    /// free, then holds the pool until the lease is dropped. Fails if `cancel` fires while
     /// waiting.
     pub fn lease(&self, ticket: &Ticket, cancel: &CancelToken) -> Result<Lease<'_>, JobError> {
         let mut s = self.lock();
-        s.waiting.insert(ticket.rank);
+        let waiter = Waiter {
+            started: ticket.started.load(Ordering::Acquire),
+            counted: ticket.counted,
+        };
+        s.waiting.insert(ticket.rank, waiter);
         loop {
-            if !s.held && s.waiting.first() == Some(&ticket.rank) {
+            if !s.held && self.next(&s) == Some(ticket.rank) {
                 s.waiting.remove(&ticket.rank);
                 s.held = true;
                 if !ticket.started.swap(true, Ordering::AcqRel) {
                     s.queued -= 1;
                     s.running += 1;
+                    if ticket.counted {
+                        s.running_counted += 1;
+                    }
                 }
                 return Ok(Lease { sched: self });
             }
@@ -167,7 +215,7 @@ impl Scheduler {
         let recent = s
             .last_interactive
             .is_some_and(|t| t.elapsed() < INTERACTIVE_WINDOW);
-        if !s.waiting.is_empty() || recent {
+        if self.next(&s).is_some() || recent {
             SHORT_WAVE_SECONDS
         } else {
             LONG_WAVE_SECONDS
@@ -197,6 +245,8 @@ pub struct Ticket {
     sched: Arc<Scheduler>,
     rank: Rank,
     started: AtomicBool,
+    /// Whether it counts against `max_running` (every job but a synchronous trace).
+    counted: bool,
 }
 
 impl Ticket {
@@ -216,6 +266,11 @@ impl Drop for Ticket {
         let mut s = self.sched.lock();
         if self.started.load(Ordering::Acquire) {
             s.running -= 1;
+            if self.counted {
+                s.running_counted -= 1;
+                // A job held back by `max_running` may start now.
+                self.sched.wake.notify_all();
+            }
         } else {
             s.queued -= 1;
         }
@@ -240,7 +295,7 @@ mod tests {
 
     #[test]
     fn the_queue_is_bounded_and_tickets_free_their_place() {
-        let s = Scheduler::new(2);
+        let s = Scheduler::new(2, 4);
         assert!(s.has_room().is_ok());
         let a = s.admit(50, false).unwrap();
         let _b = s.admit(50, false).unwrap();
@@ -255,7 +310,7 @@ mod tests {
 
     #[test]
     fn a_started_job_leaves_the_queue() {
-        let s = Scheduler::new(1);
+        let s = Scheduler::new(1, 4);
         let a = s.admit(50, false).unwrap();
         drop(a.lease(&CancelToken::new()).unwrap());
         assert_eq!((s.queued(), s.running()), (0, 1));
@@ -266,7 +321,7 @@ mod tests {
 
     #[test]
     fn leases_go_by_priority_then_admission() {
-        let s = Scheduler::new(16);
+        let s = Scheduler::new(16, 16);
         let holder = s.admit(10, false).unwrap();
         let lease = holder.lease(&CancelToken::new()).unwrap();
         let order = Arc::new(Mutex::new(Vec::new()));
@@ -291,7 +346,7 @@ mod tests {
 
     #[test]
     fn a_cancelled_wait_returns() {
-        let s = Scheduler::new(4);
+        let s = Scheduler::new(4, 4);
         let a = s.admit(50, false).unwrap();
         let _held = a.lease(&CancelToken::new()).unwrap();
         let b = s.admit(50, false).unwrap();
@@ -305,15 +360,49 @@ mod tests {
 
     #[test]
     fn waves_shorten_while_work_waits() {
-        let s = Scheduler::new(4);
+        let s = Scheduler::new(4, 4);
         assert_eq!(s.wave_seconds(), LONG_WAVE_SECONDS);
         let _t = s.admit(SYNC_PRIORITY, true).unwrap();
         assert_eq!(s.wave_seconds(), SHORT_WAVE_SECONDS);
     }
 
     #[test]
+    fn started_jobs_are_bounded_whatever_the_priority_but_traces_are_not() {
+        let s = Scheduler::new(8, 1);
+        let low = s.admit(10, false).unwrap();
+        drop(low.lease(&CancelToken::new()).unwrap());
+        // `high` outranks `low` but may not start while `low` is under way.
+        let high = s.admit(90, false).unwrap();
+        let started = Arc::new(AtomicBool::new(false));
+        let flag = Arc::clone(&started);
+        let waiter = std::thread::spawn(move || {
+            let _l = high.lease(&CancelToken::new()).unwrap();
+            flag.store(true, Ordering::Release);
+        });
+        std::thread::sleep(Duration::from_millis(80));
+        assert!(!started.load(Ordering::Acquire));
+        assert_eq!(
+            s.wave_seconds(),
+            LONG_WAVE_SECONDS,
+            "a held-back job shortens no wave"
+        );
+        // `low` keeps its turns, and a synchronous trace still takes the pool at once.
+        drop(low.lease(&CancelToken::new()).unwrap());
+        let sync = s.admit(SYNC_PRIORITY, false).unwrap();
+        drop(sync.lease(&CancelToken::new()).unwrap());
+        drop(sync);
+        assert!(!started.load(Ordering::Acquire));
+        assert_eq!((s.queued(), s.running()), (1, 1));
+        // When `low` ends, `high` starts.
+        drop(low);
+        waiter.join().unwrap();
+        assert!(started.load(Ordering::Acquire));
+        assert_eq!((s.queued(), s.running()), (0, 0));
+    }
+
+    #[test]
     fn shutting_down_refuses_work() {
-        let s = Scheduler::new(4);
+        let s = Scheduler::new(4, 4);
         s.shut_down();
         assert!(matches!(s.admit(50, false), Err(JobError::ShuttingDown)));
     }

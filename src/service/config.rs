@@ -41,6 +41,13 @@ pub struct ServeArgs {
     #[arg(long, env = "RAYD_MAX_QUEUED", default_value_t = 64)]
     pub max_queued: usize,
 
+    /// Jobs (renders, asynchronous traces) that may have started and not finished at once,
+    /// at least 1. A started render that yields to a higher-priority one between waves
+    /// keeps its image in memory; past this bound a job waits for one to end, whatever its
+    /// priority. Synchronous traces are not counted.
+    #[arg(long, env = "RAYD_MAX_RUNNING", default_value_t = crate::jobs::DEFAULT_MAX_RUNNING)]
+    pub max_running: usize,
+
     /// Bytes of one request body (1 GiB: a batch of 16M rays is 512 MiB).
     #[arg(long, env = "RAYD_MAX_BODY", default_value_t = 1 << 30)]
     pub max_body: u64,
@@ -200,6 +207,7 @@ impl ServeArgs {
             ("max-spp", u64::from(self.max_spp)),
             ("max-triangles", self.max_triangles),
             ("max-connections", self.max_connections as u64),
+            ("max-running", self.max_running as u64),
             ("max-store-bytes", self.max_store_bytes.unwrap_or(1)),
             ("callback-attempts", u64::from(self.callback_attempts)),
         ] {
