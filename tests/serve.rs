@@ -11,7 +11,7 @@ use rayd::geometry::{Ray, Triangle};
 
 #[path = "common/server.rs"]
 mod server;
-use server::{scenes, wait_job, Server, BIN};
+use server::{scenes, wait_job, wait_running, Server, BIN};
 
 fn rays_at(bounds_min: [f32; 3], bounds_max: [f32; 3], n: usize) -> Vec<Ray> {
     let c = [0, 1, 2].map(|i| 0.5 * (bounds_min[i] + bounds_max[i]));
@@ -604,10 +604,7 @@ fn the_service_end_to_end() {
         r#"{"width": 512, "height": 512, "spp": 256, "integrator": "path", "version": 1, "priority": 10}"#,
     );
     let t0 = Instant::now();
-    while s.req("GET", &format!("/v1/jobs/{long}"), &[], &[]).json()["state"] != "running" {
-        assert!(t0.elapsed() < Duration::from_secs(30));
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    wait_running(&s, &long, 30);
     // A small trace while the render runs is answered.
     let small = s.req(
         "POST",
@@ -898,15 +895,7 @@ fn deleting_a_scene_stops_its_jobs() {
     let long = br#"{"width": 512, "height": 512, "spp": 1024, "bounces": 4, "integrator": "path"}"#;
     let running = s.submit_render(&id, long);
     let queued = s.submit_render(&id, long);
-    let t0 = std::time::Instant::now();
-    while s
-        .req("GET", &format!("/v1/jobs/{running}"), &[], &[])
-        .json()["state"]
-        != "running"
-    {
-        assert!(t0.elapsed().as_secs() < 30, "the render did not start");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    wait_running(&s, &running, 30);
     assert_eq!(
         s.req("DELETE", &format!("/v1/scenes/{id}"), &[], &[])
             .status,
@@ -951,11 +940,7 @@ fn started_jobs_are_bounded_whatever_their_priority() {
         &id,
         br#"{"width": 512, "height": 512, "spp": 1024, "bounces": 4, "integrator": "path", "priority": 10}"#,
     );
-    let t0 = std::time::Instant::now();
-    while state(&long) != "running" {
-        assert!(t0.elapsed().as_secs() < 30, "the render did not start");
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
+    wait_running(&s, &long, 30);
     let urgent = s.submit_render(&id, br#"{"width": 8, "height": 8, "priority": 90}"#);
     // Longer than a wave (at most 0.5 s), after which it would have started unbounded.
     std::thread::sleep(std::time::Duration::from_millis(1500));
@@ -1227,11 +1212,7 @@ fn sigterm_lets_a_running_render_finish_within_the_grace_period() {
     );
     assert_eq!(r.status, 202);
     let job = r.json()["id"].as_str().unwrap().to_string();
-    let t0 = Instant::now();
-    while s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json()["state"] != "running" {
-        assert!(t0.elapsed() < Duration::from_secs(30));
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    wait_running(&s, &job, 30);
     // `stop` sends SIGTERM and waits for the exit.
     s.stop();
     let s = Server::start(&data, &[]);

@@ -245,6 +245,18 @@ fn dechunk(mut b: &[u8]) -> Vec<u8> {
     }
 }
 
+/// Waits (polling every 5 ms, at most `secs`) until job `id` is `running`.
+pub fn wait_running(s: &Server, id: &str, secs: u64) {
+    let t0 = Instant::now();
+    while s.req("GET", &format!("/v1/jobs/{id}"), &[], &[]).json()["state"] != "running" {
+        assert!(
+            t0.elapsed() < Duration::from_secs(secs),
+            "job {id} did not start"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
 pub fn wait_job(s: &Server, id: &str, secs: u64) -> serde_json::Value {
     let t0 = Instant::now();
     loop {
