@@ -615,6 +615,67 @@ fn an_emissive_square_lights_a_floor_with_the_analytic_irradiance() {
     );
 }
 
+/// The furnace at scale: a white floor alone under a sky of 1 reflects exactly 1, however
+/// large the floor and however far the camera. Rays that leave a surface start from a
+/// point interpolated on its triangle, offset at the scale of its vertices; with hit points
+/// taken as `origin + t·dir` and offset at the scale of the point, a 2 km floor seen from
+/// eye height rendered 0.84 (0.88 at 2 bounces), and a 2 m quad seen from 1 km 0.76, as the
+/// rays leaving it hit it again.
+#[test]
+fn a_lone_floor_reflects_the_sky_at_any_scale() {
+    let floor = |s: f32| {
+        vec![
+            tri([-s, 0.0, -s], [s, 0.0, s], [s, 0.0, -s]),
+            tri([-s, 0.0, -s], [-s, 0.0, s], [s, 0.0, s]),
+        ]
+    };
+    let views = [
+        // Eye height over floors of growing size, looking at the horizon.
+        (1000.0, [0.3, 1.7, 0.2], [0.3, 0.0, -40.0]),
+        (10000.0, [0.3, 1.7, 0.2], [0.3, 0.0, -40.0]),
+        // A small floor from far away, looking down at it.
+        (1.0, [0.0, 1000.0, 600.0], [0.0, 0.0, 0.0]),
+        (1.0, [0.0, 2000.0, 1200.0], [0.0, 0.0, 0.0]),
+    ];
+    for (size, eye, target) in views {
+        let tris = floor(size);
+        let surfaces = Surfaces::uniform(tris.len(), lambertian(1.0), Vec::new());
+        let fov = if size < 10.0 { 0.1 } else { 60.0 };
+        for bounces in [1, 2] {
+            let options = RenderOptions {
+                width: 32,
+                height: 24,
+                spp: 4,
+                integrator: Integrator::Path,
+                bounces,
+                seed: 5,
+                sky: [1.0; 3],
+                ..RenderOptions::default()
+            };
+            let camera = CameraChoice::LookAt {
+                eye,
+                target,
+                up: [0.0, 1.0, 0.0],
+                fov,
+            };
+            let img = render_surfaces(&tris, &options, &camera, &surfaces);
+            let covered: Vec<_> = img
+                .pixels
+                .iter()
+                .zip(&img.alpha)
+                .filter(|(_, a)| **a == 1.0)
+                .map(|(p, _)| p)
+                .collect();
+            assert!(covered.len() > 100, "{size} {eye:?}: {}", covered.len());
+            for p in covered {
+                for c in p {
+                    assert!((c - 1.0).abs() < 1e-3, "{size} {eye:?} {bounces}: {p:?}");
+                }
+            }
+        }
+    }
+}
+
 /// The furnace under Russian roulette: every path may end after its first scattering, and
 /// the survivors' weight keeps the mean at ρL.
 #[test]

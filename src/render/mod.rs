@@ -24,7 +24,7 @@ use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
 use rng::Pcg32;
 use sampling::{basis, cosine_hemisphere, normalize};
-use surface::{offset_ray, Presence, Surfaces};
+use surface::{coordinate_scale, offset_ray, surface_point, Presence, Surfaces};
 
 /// What a pixel shows.
 #[derive(
@@ -748,10 +748,15 @@ fn render_wave(
             let lanes = paths.state.iter_mut().zip(&paths.rays).zip(&paths.hits);
             for ((p, r), hit) in lanes {
                 if hit.is_hit() {
-                    let nrm = facing_normal(&triangles[hit.prim as usize], r.dir);
+                    let tri = &triangles[hit.prim as usize];
+                    let nrm = facing_normal(tri, r.dir);
                     let d = cosine_hemisphere(nrm, p.rng.next_f32(), p.rng.next_f32());
                     ao_rays.push(Ray {
-                        org: offset_ray(r.at(hit.t), nrm),
+                        org: offset_ray(
+                            surface_point(tri, hit.u, hit.v),
+                            nrm,
+                            coordinate_scale(tri),
+                        ),
                         tmin: 0.0,
                         dir: d,
                         tmax: dist,
@@ -863,9 +868,14 @@ impl Cone {
 /// The continuation of `ray` past the surface of `hit`: from just behind it (offset along
 /// the geometric normal, as every secondary ray), with what is left of its length.
 fn beyond(triangles: &[Triangle], ray: &Ray, hit: &Hit) -> Ray {
-    let n = facing_normal(&triangles[hit.prim as usize], ray.dir);
+    let tri = &triangles[hit.prim as usize];
+    let n = facing_normal(tri, ray.dir);
     Ray {
-        org: offset_ray(ray.at(hit.t), [-n[0], -n[1], -n[2]]),
+        org: offset_ray(
+            surface_point(tri, hit.u, hit.v),
+            [-n[0], -n[1], -n[2]],
+            coordinate_scale(tri),
+        ),
         tmin: 0.0,
         dir: ray.dir,
         tmax: (ray.tmax - hit.t).max(0.0),
@@ -1122,7 +1132,7 @@ fn shade_vertex(
     let tri = &frame.triangles[hit.prim as usize];
     let width = p.cone.width_at(p.travelled + hit.t);
     let sp = frame.surfaces.at(tri, hit, dir, width);
-    let pos = Vec3::from(ray.at(hit.t));
+    let pos = Vec3::from(surface_point(tri, hit.u, hit.v));
     let mut emitted = thr * sp.emission;
     if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
         let dist = (pos - p.prev_pos).length();
@@ -1140,7 +1150,7 @@ fn shade_vertex(
     let (t, b, n) = (Vec3::from(t), Vec3::from(b), sp.ns);
     let local = |v: Vec3| Vec3::new(v.dot(t), v.dot(b), v.dot(n));
     let wo = local(-dir);
-    let org = offset_ray(pos.to_array(), sp.ng.to_array());
+    let org = offset_ray(pos.to_array(), sp.ng.to_array(), coordinate_scale(tri));
     if !lights.is_empty() {
         let u = [
             p.rng.next_f32(),
@@ -1168,7 +1178,8 @@ fn shade_vertex(
                 } else {
                     normal
                 };
-                let target = Vec3::from(offset_ray(point.to_array(), side.to_array()));
+                let emitter = coordinate_scale(&frame.triangles[prim as usize]);
+                let target = Vec3::from(offset_ray(point.to_array(), side.to_array(), emitter));
                 let d = target - Vec3::from(org);
                 let dist = d.length();
                 let wi = d / dist;

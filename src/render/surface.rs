@@ -680,31 +680,43 @@ impl Surfaces {
     }
 }
 
-/// A point just off the surface at `p` on the side `n` faces, for the next ray: Wächter
-/// and Binder's offset (Ray Tracing Gems, ch. 6), which moves each coordinate by a number of
-/// ULPs proportional to the normal, so it stays above f32 rounding at any magnitude, and
-/// by a small fixed distance near the origin, where ULPs are tiny.
+/// The point of triangle `tri` at barycentrics `u` (of `v1`) and `v` (of `v2`): where a
+/// hit is, for the rays that leave it. Interpolated from the vertices rather than taken as
+/// `origin + t·dir`, whose rounding grows with the distance the ray travelled: a ray that
+/// crossed a kilometre-wide floor found its hit point millimetres off the floor, on either
+/// side, and the ray leaving it hit the floor again. The interpolated point is off the
+/// triangle's plane by a few ULPs of its vertices' coordinates, wherever the ray came from.
 #[inline]
-pub fn offset_ray(p: [f32; 3], n: [f32; 3]) -> [f32; 3] {
-    const ORIGIN: f32 = 1.0 / 32.0;
-    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
-    let mut out = [0.0; 3];
-    for k in 0..3 {
-        let of_i = (INT_SCALE * n[k]) as i32;
-        let bits = p[k].to_bits() as i32;
-        let moved = if p[k] < 0.0 {
-            bits.wrapping_sub(of_i)
-        } else {
-            bits.wrapping_add(of_i)
-        };
-        out[k] = if p[k].abs() < ORIGIN {
-            p[k] + FLOAT_SCALE * n[k]
-        } else {
-            f32::from_bits(moved as u32)
-        };
-    }
-    out
+pub fn surface_point(tri: &Triangle, u: f32, v: f32) -> [f32; 3] {
+    let w = 1.0 - u - v;
+    let [a, b, c] = tri.v;
+    std::array::from_fn(|k| w * a[k] + u * b[k] + v * c[k])
+}
+
+/// The magnitude that bounds the rounding of a point on `tri` and of the intersection
+/// tests against it: its largest vertex coordinate.
+#[inline]
+pub fn coordinate_scale(tri: &Triangle) -> f32 {
+    tri.v.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()))
+}
+
+/// How far [`offset_ray`] moves a point, relative to [`coordinate_scale`]: 2^-15, 256 ULPs
+/// of a coordinate at that scale, as Wächter and Binder's integer offset (Ray Tracing Gems,
+/// ch. 6) moves a coordinate of the point's own magnitude.
+const OFFSET_RELATIVE: f32 = 1.0 / 32768.0;
+
+/// A point just off the surface at `p` (on a triangle of [`coordinate_scale`] `scale`) on
+/// the side `n` (unit) faces, for the next ray. Wächter and Binder scale the offset with
+/// the point's own coordinates, and by a fixed 1/65536 near the origin; but what rounds is
+/// the triangle's arithmetic, at the scale of its vertices: a point at the middle of a
+/// kilometre-wide floor has coordinates near 0 and errors near 6e-5, which their fixed
+/// offset did not clear. So the point moves `scale · 2^-15` along `n`, which stays 256 ULPs
+/// above the rounding of the point and of the tests at any scale, and shrinks with tiny
+/// scenes instead of leaking light through their walls.
+#[inline]
+pub fn offset_ray(p: [f32; 3], n: [f32; 3], scale: f32) -> [f32; 3] {
+    let d = (scale * OFFSET_RELATIVE).max(f32::MIN_POSITIVE);
+    std::array::from_fn(|k| p[k] + d * n[k])
 }
 
 #[cfg(test)]
@@ -714,15 +726,36 @@ mod tests {
 
     #[test]
     fn offset_moves_to_the_normal_side_at_every_scale() {
-        for scale in [1e-3f32, 0.5, 1.0, 1e3, 1e6] {
+        for scale in [1e-6f32, 1e-3, 0.5, 1.0, 1e3, 1e6, 1e19] {
             let p = [scale, -scale, 0.25 * scale];
             let n = [0.0, 0.0, 1.0];
-            let q = offset_ray(p, n);
+            let q = offset_ray(p, n, scale);
             assert!(q[2] > p[2], "{scale}: {q:?}");
             assert_eq!([q[0], q[1]], [p[0], p[1]]);
-            let q = offset_ray(p, [0.0, 0.0, -1.0]);
+            let q = offset_ray(p, [0.0, 0.0, -1.0], scale);
             assert!(q[2] < p[2], "{scale}: {q:?}");
+            // Near the origin of a large triangle the offset is the triangle's, not the
+            // point's.
+            let q = offset_ray([0.0; 3], n, scale);
+            assert!(q[2] >= scale / 65536.0, "{scale}: {q:?}");
         }
+    }
+
+    #[test]
+    fn surface_points_lie_on_the_triangle_whatever_the_distance_travelled() {
+        // A floor 2 km wide at y = 0 and a ray that crosses it 1,500 m away.
+        let tri = Triangle {
+            v: [
+                [-1000.0, 0.0, -1000.0],
+                [1000.0, 0.0, -1000.0],
+                [0.0, 0.0, 1000.0],
+            ],
+        };
+        let p = surface_point(&tri, 0.3, 0.4);
+        assert_eq!(p[1], 0.0);
+        assert_eq!(coordinate_scale(&tri), 1000.0);
+        let q = offset_ray(p, [0.0, 1.0, 0.0], coordinate_scale(&tri));
+        assert!(q[1] > 0.03 - 1e-3, "{q:?}");
     }
 
     /// A triangle in the XY plane facing +Z, with u along +X and v along −Y (glTF's v
