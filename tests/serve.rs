@@ -921,6 +921,66 @@ fn deleting_a_scene_stops_its_jobs() {
     }
 }
 
+/// A job's event stream sends each change once and closes after the final state, even
+/// when a cancel lands as the render ends: the last wave's progress step used to overwrite
+/// the cancel's final view, and a stream opened at that moment could pair a `running`
+/// record with a job already gone, so streams ended on `running`, progress 1.
+#[test]
+fn event_streams_end_on_the_final_state_and_repeat_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &[]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let events = |job: &str| -> Vec<serde_json::Value> {
+        let r = s.req("GET", &format!("/v1/jobs/{job}/events"), &[], &[]);
+        String::from_utf8_lossy(&r.body)
+            .lines()
+            .filter_map(|l| l.strip_prefix("data:"))
+            .map(|d| serde_json::from_str(d.trim()).unwrap())
+            .collect()
+    };
+    for round in 0..12 {
+        let body = format!(
+            r#"{{"width": 96, "height": 96, "spp": 16, "integrator": "path", "seed": {round}}}"#
+        );
+        let job = s.submit_render(&id, body.as_bytes());
+        let streams = std::thread::scope(|scope| {
+            let streams: Vec<_> = (0..3).map(|_| scope.spawn(|| events(&job))).collect();
+            // Cancel near the end (or after it: then the job has succeeded).
+            loop {
+                let j = s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json();
+                if j["progress"].as_f64().unwrap() >= 0.95
+                    || j["state"] != "running" && j["state"] != "queued"
+                {
+                    break;
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            let cancel = s.req("DELETE", &format!("/v1/jobs/{job}"), &[], &[]);
+            // 200 with the cancelled job, or 204: it had ended, and is deleted.
+            let end = match cancel.status {
+                200 => cancel.json()["state"].clone(),
+                204 => serde_json::json!("succeeded"),
+                other => panic!("{round}: DELETE answered {other}"),
+            };
+            let streams: Vec<_> = streams.into_iter().map(|t| t.join().unwrap()).collect();
+            (end, streams)
+        });
+        let (end, streams) = streams;
+        for ev in streams {
+            assert_eq!(
+                ev.last().map(|e| &e["state"]),
+                Some(&end),
+                "{round}: {ev:?}"
+            );
+            assert!(
+                ev.windows(2).all(|w| w[0] != w[1]),
+                "{round}: an event repeated: {ev:?}"
+            );
+        }
+    }
+}
+
 /// `--max-running` bounds the jobs under way: a started render that yields between waves
 /// keeps its image, so a render of higher priority may not start beside it past the bound
 /// (it waits, queued, for the first to end), while the started one keeps running.

@@ -176,8 +176,13 @@ impl App {
 
     /// A job's events.
     pub async fn job_events(&self, id: &str) -> Result<JobEvents, AppError> {
+        // The live entry first, the record second: a job's end (or cancel) is in the store
+        // before its entry goes, so a job found without one has its final state read here.
+        // The other order could pair a `running` record with an entry gone meanwhile, and
+        // end the stream on a state that was no longer true.
+        let rx = self.live(id);
         let view = self.job(id).await?;
-        match self.live(id) {
+        match rx {
             Some(rx) if !view.state.is_finished() => Ok(JobEvents::Live(rx)),
             _ => Ok(JobEvents::Ended(Box::new(view))),
         }
@@ -388,12 +393,20 @@ impl App {
         if let Some(p) = fresher {
             let _ = self.store().set_progress(id, p).await;
         }
-        let cancelled = self.store().cancel_job(id).await?;
+        let cancelled = match self.store().cancel_job(id).await {
+            Ok(r) => r,
+            // It ended meanwhile: an ended job's DELETE deletes it.
+            Err(StoreError::Conflict(_)) if self.store().get_job(id).await?.state.is_finished() => {
+                self.store().delete_job(id).await?;
+                return Ok(None);
+            }
+            Err(e) => return Err(e.into()),
+        };
         let live = self.take_live(id);
         let view = JobView::from_record(&cancelled);
         if let Some(l) = live {
             l.cancel.cancel();
-            l.events.send_replace(view.clone());
+            show(&l.events, &view);
         }
         if view.callback.is_some() {
             self.notify(id);
@@ -478,10 +491,9 @@ impl App {
     /// Starts the job's thread.
     fn start(&self, record: JobRecord, work: Work, ticket: sched::Ticket) {
         let cancel = CancelToken::new();
-        // No receiver is kept: `send_replace` updates the view whether or not anyone
-        // streams it, so a GET and a cancel read the live progress (`send` would drop
-        // the value while no stream is open, and a GET would show the store's, up to
-        // 500 ms old).
+        // No receiver is kept: [`show`] updates the view whether or not anyone streams it,
+        // so a GET and a cancel read the live progress (`send` would drop the value while
+        // no stream is open, and a GET would show the store's, up to 500 ms old).
         let (events, _) = watch::channel(JobView::from_record(&record));
         self.inner
             .live
@@ -533,7 +545,7 @@ impl App {
             Arc::new(move |p: f64| {
                 let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                 v.progress = p;
-                events.send_replace(v.clone());
+                show(&events, &v);
                 // The store hears about progress at most every 500 ms.
                 let ms = t0.elapsed().as_millis() as u64;
                 if ms >= last_store.load(Ordering::Relaxed) + 500 {
@@ -559,7 +571,7 @@ impl App {
                 if let Ok(r) = rt.block_on(store.start_job(&id)) {
                     let mut v = view.lock().unwrap_or_else(|e| e.into_inner());
                     *v = JobView::from_record(&r);
-                    events.send_replace(v.clone());
+                    show(&events, &v);
                 }
                 tracing::info!("job started");
             }
@@ -635,9 +647,17 @@ impl App {
                     let _ = store.start_job(&id).await;
                 }
                 match store.finish_job(&id, end).await {
-                    // Its results could not be recorded (a blob gone, say): the job ends
-                    // as failed with the reason, never `running` with nobody to end it.
                     Err(e) => {
+                        // Cancelled after the check above: the cancel is the job's end
+                        // (the canceller has told its event streams and its callback).
+                        if let Ok(r) = store.get_job(&id).await {
+                            if r.state == JobState::Cancelled {
+                                return Ok(r);
+                            }
+                        }
+                        // Its results could not be recorded (a blob gone, say): the job
+                        // ends as failed with the reason, never `running` with nobody to
+                        // end it.
                         tracing::error!("cannot record the job's end: {e}; recording a failure");
                         let failed = JobOutcome::Failed {
                             error: format!("the job's results could not be recorded: {e}"),
@@ -653,8 +673,8 @@ impl App {
                     tracing::info!(state = r.state.as_str(), "job ended");
                     observe(r.state);
                     let view = JobView::from_record(&r);
-                    let has_callback = view.callback.is_some();
-                    events.send_replace(view);
+                    let has_callback = view.callback.is_some() && r.state != JobState::Cancelled;
+                    show(&events, &view);
                     if has_callback {
                         self.notify(&id);
                     }
@@ -794,4 +814,18 @@ impl App {
             vec![(blob, "application/octet-stream".to_string())],
         ))
     }
+}
+
+/// Shows `view` to job's event streams (and to GETs of the live job), unless the job has
+/// already ended there: a cancel's final view must not be overwritten by a progress step
+/// of the wave that was running when it came, or a stream would end on `running`.
+/// (`send_if_modified`, like `send_replace`, updates the value with no stream open.)
+fn show(events: &watch::Sender<JobView>, view: &JobView) {
+    events.send_if_modified(|shown| {
+        if shown.state.is_finished() || *shown == *view {
+            return false;
+        }
+        *shown = view.clone();
+        true
+    });
 }
