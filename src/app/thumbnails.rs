@@ -231,9 +231,9 @@ impl App {
                 })
                 .map_err(|e| JobError::Geometry(e.to_string()))
         };
-        // Re-admitted rather than admitted: a thumbnail never takes a client's place in the
-        // bounded queue, and is never refused by it (at most one waits at a time).
-        let ticket = self.engine().scheduler().readmit(THUMBNAIL_PRIORITY);
+        // Background work: a thumbnail never takes a client's place in the bounded queue
+        // nor a `--max-running` slot, and is never refused (at most one waits at a time).
+        let ticket = self.engine().scheduler().background(THUMBNAIL_PRIORITY);
         let control = self.engine().control(CancelToken::new(), None, ticket);
         let mut png = None;
         self.engine()

@@ -57,8 +57,11 @@ struct State {
     /// Tickets that have held a lease and are not finished.
     running: usize,
     /// Those of `running` that count against `max_running` (every job but synchronous
-    /// traces).
+    /// traces and background work).
     running_counted: usize,
+    /// Those of `queued` that are background work ([`Scheduler::background`]), which takes
+    /// no client's place.
+    queued_background: usize,
     next_seq: u64,
     shutting_down: bool,
     last_interactive: Option<Instant>,
@@ -128,6 +131,7 @@ impl Scheduler {
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
             counted: priority != SYNC_PRIORITY,
+            background: false,
         })
     }
 
@@ -143,23 +147,38 @@ impl Scheduler {
         if s.shutting_down {
             return Err(JobError::ShuttingDown);
         }
-        if s.queued >= self.max_queued {
-            return Err(JobError::QueueFull(s.queued));
+        let waiting = s.queued - s.queued_background;
+        if waiting >= self.max_queued {
+            return Err(JobError::QueueFull(waiting));
         }
         Ok(())
     }
 
     /// Re-admits a job found queued or running when the process started (recovery): it
-    /// bypasses the bound, since refusing it would lose acknowledged work.
+    /// bypasses the bound, since refusing it would lose acknowledged work, and then waits
+    /// and runs as any job.
     pub fn readmit(self: &Arc<Self>, priority: u16) -> Ticket {
+        self.ticket(priority, false)
+    }
+
+    /// Admits background work of the server's own (a thumbnail): it bypasses the queue's
+    /// bound and takes no client's place in it, and does not count against
+    /// `max_running` (it is small, and at most one waits at a time).
+    pub fn background(self: &Arc<Self>, priority: u16) -> Ticket {
+        self.ticket(priority, true)
+    }
+
+    fn ticket(self: &Arc<Self>, priority: u16, background: bool) -> Ticket {
         let mut s = self.lock();
         s.queued += 1;
+        s.queued_background += usize::from(background);
         s.next_seq += 1;
         Ticket {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
-            counted: priority != SYNC_PRIORITY,
+            counted: priority != SYNC_PRIORITY && !background,
+            background,
         }
     }
 
@@ -180,6 +199,7 @@ impl Scheduler {
                 s.held = true;
                 if !ticket.started.swap(true, Ordering::AcqRel) {
                     s.queued -= 1;
+                    s.queued_background -= usize::from(ticket.background);
                     s.running += 1;
                     if ticket.counted {
                         s.running_counted += 1;
@@ -245,8 +265,11 @@ pub struct Ticket {
     sched: Arc<Scheduler>,
     rank: Rank,
     started: AtomicBool,
-    /// Whether it counts against `max_running` (every job but a synchronous trace).
+    /// Whether it counts against `max_running` (every job but a synchronous trace and
+    /// background work).
     counted: bool,
+    /// Background work ([`Scheduler::background`]).
+    background: bool,
 }
 
 impl Ticket {
@@ -273,6 +296,7 @@ impl Drop for Ticket {
             }
         } else {
             s.queued -= 1;
+            s.queued_background -= usize::from(self.background);
         }
     }
 }
@@ -398,6 +422,21 @@ mod tests {
         waiter.join().unwrap();
         assert!(started.load(Ordering::Acquire));
         assert_eq!((s.queued(), s.running()), (0, 0));
+    }
+
+    #[test]
+    fn background_work_takes_no_place_and_no_running_slot() {
+        let s = Scheduler::new(1, 1);
+        let job = s.admit(50, false).unwrap();
+        drop(job.lease(&CancelToken::new()).unwrap());
+        let thumb = s.background(0);
+        // The queue's one place is still free, and the thumbnail starts beside the job.
+        let queued = s.admit(50, false).unwrap();
+        drop(queued);
+        drop(thumb.lease(&CancelToken::new()).unwrap());
+        assert_eq!((s.queued(), s.running()), (0, 2));
+        drop(thumb);
+        assert!(s.has_room().is_ok());
     }
 
     #[test]
