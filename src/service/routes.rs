@@ -363,11 +363,15 @@ fn content_length(headers: &HeaderMap) -> Option<u64> {
 }
 
 /// Whether the client asked for an asynchronous answer (RFC 7240 `Prefer: respond-async`).
+/// A preference is its token, before any `=` value or `;` parameters: `respond-async;x=1`
+/// still asks for it.
 fn prefers_async(headers: &HeaderMap) -> bool {
     headers.get_all("prefer").iter().any(|v| {
         v.to_str().is_ok_and(|s| {
-            s.split(',')
-                .any(|p| p.trim().eq_ignore_ascii_case("respond-async"))
+            s.split(',').any(|p| {
+                let token = p.split([';', '=']).next().unwrap_or("");
+                token.trim().eq_ignore_ascii_case("respond-async")
+            })
         })
     })
 }
@@ -775,4 +779,38 @@ async fn job_result(
     );
     h.insert(header::ETAG, HeaderValue::from_str(&etag).expect("hex"));
     Ok(resp)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn respond_async_is_read_with_its_parameters() {
+        let asks = |values: &[&str]| {
+            let mut h = HeaderMap::new();
+            for v in values {
+                h.append("prefer", v.parse().unwrap());
+            }
+            prefers_async(&h)
+        };
+        for yes in [
+            &["respond-async"][..],
+            &["Respond-Async"],
+            &["respond-async;foo"],
+            &["respond-async ; foo=1"],
+            &["wait=5, respond-async"],
+            &["return=minimal", "respond-async"],
+        ] {
+            assert!(asks(yes), "{yes:?}");
+        }
+        for no in [
+            &[][..],
+            &["wait=5"],
+            &["respond-asynchronously"],
+            &["x;respond-async"],
+        ] {
+            assert!(!asks(no), "{no:?}");
+        }
+    }
 }
