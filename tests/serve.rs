@@ -584,6 +584,14 @@ fn the_service_end_to_end() {
         &tri,
     );
     assert_eq!(put.status, 200, "{}", String::from_utf8_lossy(&put.body));
+    // Frames are times, which versions from 2 on (here the latest) do not have, as `time`.
+    for body in [
+        &br#"{"width": 8, "height": 8, "frames": {"start": 0, "end": 1, "step": 0.5}}"#[..],
+        br#"{"width": 8, "height": 8, "version": 2, "frames": {"start": 0, "end": 1, "step": 0.5}}"#,
+    ] {
+        let r = s.post_render(&id, body);
+        assert_eq!((r.status, r.json()["field"].as_str()), (400, Some("frames")));
+    }
     let c = s.req(
         "POST",
         &format!("/v1/scenes/{id}/render"),

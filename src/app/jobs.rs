@@ -205,6 +205,18 @@ impl App {
         // error and not the job's.
         let asked = spec.version;
         let (geometry, cameras) = self.geometry(scene, asked, spec.time).await?;
+        // `frames` are times, which only version 1 has (as `time`'s check above says).
+        let has_frames = spec.frames.is_some();
+        let frames_on = move |version: u32| match has_frames {
+            true if version != 1 => Err(AppError::BadParameter {
+                field: "frames",
+                detail: format!(
+                    "version {version} holds positions only; frames evaluate version 1's animation"
+                ),
+            }),
+            _ => Ok(()),
+        };
+        frames_on(geometry.key.version)?;
         if let crate::render::camera::CameraChoice::Scene(index) = request.camera {
             if index >= cameras.len() {
                 return Err(AppError::Unprocessable {
@@ -256,6 +268,7 @@ impl App {
                 }) if asked.is_none() && tries < LATEST_TRIES => {
                     tries += 1;
                     version = self.geometry(scene, None, spec.time).await?.0.key.version;
+                    frames_on(version)?;
                 }
                 r => break r?,
             }
