@@ -1123,9 +1123,15 @@ fn async_traces_answer_as_sync_ones_and_refuse_bad_bodies_up_front() {
         .as_array()
         .unwrap()
         .len();
+    // Rays 700 (a NaN origin) and 900 (no direction) are invalid.
+    let mut invalid = rays_at([min[0], min[1], min[2]], [max[0], max[1], max[2]], 1000);
+    invalid[700].org[0] = f32::NAN;
+    invalid[900].dir = [0.0; 3];
+    let invalid = write_rays(&invalid);
     for (what, bad, status) in [
         ("over --max-rays", rays(1001), 413),
         ("truncated", body[..body.len() - 5].to_vec(), 400),
+        ("invalid rays", invalid.clone(), 422),
     ] {
         let sync = s.req("POST", &path, &[octet], &bad);
         assert_eq!(sync.status, status, "sync, {what}");
@@ -1137,12 +1143,28 @@ fn async_traces_answer_as_sync_ones_and_refuse_bad_bodies_up_front() {
             String::from_utf8_lossy(&r.body)
         );
         assert_eq!(r.header("content-type"), Some("application/problem+json"));
+        if status == 422 {
+            assert_eq!(
+                (r.json()["ray_index"].as_u64(), r.json()["count"].as_u64()),
+                (Some(700), Some(2))
+            );
+        }
     }
+    // Under invalid=miss the same rays are answered, by a job.
+    let r = s.req(
+        "POST",
+        &format!("{path}&invalid=miss"),
+        &[octet, prefer],
+        &invalid,
+    );
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let job = r.json()["id"].as_str().unwrap().to_string();
+    assert_eq!(wait_job(&s, &job, 60)["state"], "succeeded");
     let jobs_after = s.req("GET", "/v1/jobs", &[], &[]).json()["jobs"]
         .as_array()
         .unwrap()
         .len();
-    assert_eq!(jobs_before, jobs_after, "a refused body made a job");
+    assert_eq!(jobs_before + 1, jobs_after, "a refused body made a job");
 }
 
 /// With `--keep-versions 2` a scene keeps version 1, its two newest versions and the

@@ -18,7 +18,7 @@ use super::callbacks::CallbackView;
 use super::{App, AppError, RenderSpec, TraceParams};
 use crate::geometry::Ray;
 use crate::jobs::render::FrameInput;
-use crate::jobs::{sched, trace, CancelToken, JobError};
+use crate::jobs::{sched, trace, CancelToken, InvalidPolicy, JobError};
 use crate::render::surface::Surfaces;
 use crate::render::texture::{DecodedOnce, TextureSet};
 use crate::store::{
@@ -320,6 +320,10 @@ impl App {
             .await?
         {
             return Ok(JobView::from_record(&job));
+        }
+        if params.invalid == InvalidPolicy::Error {
+            let body = rays_body.clone();
+            self.cpu(move || trace::check_body(&body)).await??;
         }
         let ticket = self.engine().scheduler().admit(50, false)?;
         let rays_blob = self.store().put_blob(rays_body).await?;

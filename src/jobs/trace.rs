@@ -110,6 +110,45 @@ pub fn validate_read(rays: &mut RaySegment, policy: InvalidPolicy) -> Result<usi
     settle(rays.validate(policy == InvalidPolicy::Miss), policy)
 }
 
+/// [`validate`]'s verdict under `error` on a whole RAY1 `body` whose header and length
+/// were checked ([`crate::formats::binary::ray_count`]), read in blocks rather than decoded
+/// into a second copy of the batch: an asynchronous trace refuses bad rays (422, naming the
+/// first and the count) before it is accepted, as a synchronous one does, not as a job
+/// that fails later. CPU work: run it on the pool.
+pub fn check_body(body: &[u8]) -> Result<(), JobError> {
+    const BLOCK: usize = 4096;
+    let records = body.get(HEADER_BYTES..).unwrap_or_default();
+    let mut found: Option<InvalidRays> = None;
+    let mut block = Vec::with_capacity(BLOCK);
+    for (b, bytes) in records.chunks(BLOCK * RAY_BYTES).enumerate() {
+        block.clear();
+        block.extend(bytes.chunks_exact(RAY_BYTES).map(|r| {
+            let f = |k: usize| f32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap());
+            Ray {
+                org: [f(0), f(1), f(2)],
+                tmin: f(3),
+                dir: [f(4), f(5), f(6)],
+                tmax: f(7),
+            }
+        }));
+        if let Some(bad) = Ray::validate_batch(&mut block, false) {
+            match &mut found {
+                Some(first) => first.count += bad.count,
+                None => {
+                    found = Some(InvalidRays {
+                        first_index: b * BLOCK + bad.first_index,
+                        ..bad
+                    })
+                }
+            }
+        }
+    }
+    settle(found, InvalidPolicy::Error).map(|_| ())
+}
+
+/// Bytes of a RAY1 record.
+const RAY_BYTES: usize = 32;
+
 /// What `policy` makes of the bad rays a check found.
 fn settle(bad: Option<InvalidRays>, policy: InvalidPolicy) -> Result<usize, JobError> {
     match bad {
@@ -444,6 +483,34 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_body_check_names_the_first_bad_ray_and_counts_them_all() {
+        let mut rays = vec![
+            Ray {
+                org: [0.0; 3],
+                tmin: 0.0,
+                dir: [0.0, 0.0, 1.0],
+                tmax: f32::INFINITY,
+            };
+            10_000
+        ];
+        let body = crate::formats::binary::write_rays(&rays);
+        assert!(check_body(&body).is_ok());
+        rays[4100].org[1] = f32::NAN;
+        rays[9000].dir = [0.0; 3];
+        rays[9999].tmin = -1.0;
+        let body = crate::formats::binary::write_rays(&rays);
+        match check_body(&body) {
+            Err(JobError::InvalidRays(bad)) => assert_eq!((bad.first_index, bad.count), (4100, 3)),
+            other => panic!("{other:?}"),
+        }
+        let mut copy = rays.clone();
+        match validate(&mut copy, InvalidPolicy::Error) {
+            Err(JobError::InvalidRays(bad)) => assert_eq!((bad.first_index, bad.count), (4100, 3)),
+            other => panic!("{other:?}"),
+        }
+    }
     use crate::formats::binary::{read_hits, write_hits};
     use crate::geometry::Triangle;
     use std::sync::Arc;
