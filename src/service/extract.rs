@@ -97,7 +97,13 @@ pub fn parse_json<T: DeserializeOwned>(bytes: &[u8]) -> Result<T, ApiError> {
     }
     let de = &mut serde_json::Deserializer::from_slice(bytes);
     let value: T = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
-        let field = field_of(&e.path().to_string(), &e.inner().to_string());
+        let inner = e.inner().to_string();
+        let field = field_of(&e.path().to_string(), &inner);
+        if e.inner().classify() == serde_json::error::Category::Data
+            && names_no_version(field.as_deref(), &inner)
+        {
+            return no_such_version(&inner);
+        }
         json_error(e.inner(), field)
     })?;
     // Characters after the document are an error too.
@@ -168,6 +174,9 @@ pub fn parse_query<T: DeserializeOwned>(query: &str) -> Result<T, ApiError> {
     serde_path_to_error::deserialize(de).map_err(|e| {
         let inner = e.inner().to_string();
         let field = field_of(&e.path().to_string(), &inner);
+        if names_no_version(field.as_deref(), &inner) {
+            return no_such_version(&inner);
+        }
         let mut err = ApiError::bad_request(match &field {
             Some(f) => format!("query parameter `{f}`: {inner}"),
             None => format!("the query string is not valid: {inner}"),
@@ -177,6 +186,20 @@ pub fn parse_query<T: DeserializeOwned>(query: &str) -> Result<T, ApiError> {
         }
         err
     })
+}
+
+/// Whether a parameter or body field that failed to deserialise is a `version` of a form
+/// no version has (`-1`, `abc`, `1.5`, past u32): a version is an id, and an id that names
+/// nothing is 404 whatever its form (contract §5). A `version` given twice stays a
+/// malformed request.
+fn names_no_version(field: Option<&str>, message: &str) -> bool {
+    field == Some("version") && !message.starts_with("duplicate field")
+}
+
+/// The 404 of a `version` of a form no version has.
+fn no_such_version(why: &str) -> ApiError {
+    ApiError::not_found(format!("the version names no version of the scene: {why}"))
+        .with_field("version")
 }
 
 /// Path parameters deserialised into `T`. A path that does not parse names nothing, so it
@@ -245,6 +268,60 @@ mod tests {
     struct Body {
         width: u32,
         frames: Option<Frames>,
+    }
+
+    #[test]
+    fn a_version_of_no_version_s_form_is_404_and_other_errors_400() {
+        #[derive(Debug, serde::Deserialize)]
+        #[serde(deny_unknown_fields)]
+        #[allow(dead_code)]
+        struct V {
+            version: Option<u32>,
+            width: Option<u32>,
+        }
+        for q in [
+            "version=-1",
+            "version=abc",
+            "version=1.0",
+            "version=4294967296",
+            "version=",
+        ] {
+            let e = parse_query::<V>(q).unwrap_err();
+            assert_eq!(
+                (e.status().as_u16(), &e.extensions()["field"]),
+                (404, &serde_json::json!("version")),
+                "{q}"
+            );
+        }
+        for q in ["version=1&version=2", "width=-1"] {
+            assert_eq!(
+                parse_query::<V>(q).unwrap_err().status().as_u16(),
+                400,
+                "{q}"
+            );
+        }
+        for b in [
+            r#"{"version": -1}"#,
+            r#"{"version": "2"}"#,
+            r#"{"version": 1.5}"#,
+        ] {
+            assert_eq!(
+                parse_json::<V>(b.as_bytes()).unwrap_err().status().as_u16(),
+                404,
+                "{b}"
+            );
+        }
+        for b in [
+            r#"{"version": 1, "version": 2}"#,
+            r#"{"version": 1x}"#,
+            r#"{"width": -1}"#,
+        ] {
+            assert_eq!(
+                parse_json::<V>(b.as_bytes()).unwrap_err().status().as_u16(),
+                400,
+                "{b}"
+            );
+        }
     }
 
     #[test]
