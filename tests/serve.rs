@@ -248,6 +248,21 @@ fn the_service_end_to_end() {
         &glb_bytes,
     );
     assert_eq!((r.status, r.json()["byte_offset"].as_u64()), (400, Some(0)));
+    // Stored bytes declared as another type are refused as they would be unstored.
+    let stored = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "model/gltf-binary")],
+        &glb_bytes,
+    );
+    assert!(matches!(stored.status, 200 | 201), "{}", stored.status);
+    let r = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "application/x-rayd-tri")],
+        &glb_bytes,
+    );
+    assert_eq!(r.status, 400, "{}", String::from_utf8_lossy(&r.body));
     // A geometry update takes no query parameters.
     let r = s.req(
         "PUT",

@@ -358,9 +358,15 @@ impl App {
         check_kind(kind, &bytes)?;
         let id = BlobId::of(&bytes);
         if let Ok(existing) = self.store().get_scene(id.as_str()).await {
-            // Uploading the bytes again is also how a failed thumbnail is tried again.
-            self.queue_thumbnail(&existing.id);
-            return Ok((SceneView::from_record(existing), false));
+            // The same bytes declared as what they were stored as are the same scene.
+            // Declared as another type they are parsed as that type below, and refused as
+            // they would be on a server that had never seen them: a stored GLB sent as
+            // TRI1 does not load as TRI1.
+            if existing.content_type == kind.media_type() {
+                // Uploading the bytes again is also how a failed thumbnail is tried again.
+                self.queue_thumbnail(&existing.id);
+                return Ok((SceneView::from_record(existing), false));
+            }
         }
         let b = bytes.clone();
         let max = self.inner.max_triangles;
