@@ -605,6 +605,12 @@ fn a_sequence_frame_is_the_frame_rendered_alone() {
         std::fs::read(&alone).unwrap(),
         "frame 2 of the sequence differs from the frame at time 0.2 alone"
     );
+    // A sequence may start at a negative time, written as a separate argument.
+    let mut early = args(&dir.path().join("e-#.png"));
+    early.extend(["--frames".into(), "-0.2:0:0.1".into()]);
+    let (ok, j, err) = rayd(&early.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(ok, "{err}");
+    assert_eq!(j["outputs"].as_array().unwrap().len(), 3, "{j}");
 }
 
 #[test]

@@ -50,7 +50,7 @@ pub(super) struct RenderArgs {
     #[arg(long, value_delimiter = ',')]
     aov: Vec<Aov>,
     /// Animation times START:END:STEP (seconds): one image per time.
-    #[arg(long, conflicts_with = "time")]
+    #[arg(long, conflicts_with = "time", allow_hyphen_values = true)]
     frames: Option<String>,
     /// How each frame over moved geometry gets its BVH: auto (the cost model), refit
     /// (whenever a structure of the scene is cached) or rebuild (every frame).
