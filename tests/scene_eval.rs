@@ -617,6 +617,16 @@ fn malformed_appearance_is_an_error_only_when_asked_for() {
         e.to_string(),
         "material 0: roughnessFactor must be in [0, 1]"
     );
+    // A primitive pointing past the materials.
+    doc["materials"] = json!([{}]);
+    doc["meshes"][0]["primitives"][0]["material"] = json!(3);
+    let bytes = serde_json::to_vec(&doc).unwrap();
+    let e = load_with(&bytes, None, &LoadOptions::default(), Parts::Shading).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "mesh 0 primitive 0: refers to material 3, but the file has 1"
+    );
+    load_with(&bytes, None, &LoadOptions::default(), Parts::Geometry).unwrap();
     // An image stored beside a file that was uploaded alone.
     doc["materials"] = json!([]);
     doc["meshes"][0]["primitives"][0]

@@ -388,7 +388,19 @@ impl Meshes {
             .flatten()
             .map(|t| [t.normals.map(|a| a.value()), t.tangents.map(|a| a.value())])
             .collect();
-        shading.material = p.material.map(|x| x.value());
+        shading.material = match p.material.map(|x| x.value()) {
+            Some(i) if i >= data.root.materials.len() => {
+                return Err(bad_prim(
+                    m,
+                    pi,
+                    format!(
+                        "refers to material {i}, but the file has {}",
+                        data.root.materials.len()
+                    ),
+                ))
+            }
+            material => material,
+        };
         let vec3 = &[Type::Vec3];
         let vec4 = &[Type::Vec4];
         let vec2 = &[Type::Vec2];
