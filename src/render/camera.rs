@@ -161,12 +161,23 @@ impl ViewCamera {
 
     /// A default view that frames `bounds`: looking at its centre from the front-right and a
     /// little above (direction `(0.55, 0.35, 1)`), up +Y, 45° vertical field of view, far
-    /// enough that the bounding sphere fits with 5 % margin.
+    /// enough that the bounding sphere fits with 5 % margin in the narrower of the image's
+    /// two fields of view (a portrait image's is the horizontal one). The sphere is the
+    /// scene's at any size: only one too small for the centre's f32 precision (or empty) is
+    /// widened, to a millionth of the centre's largest coordinate.
     pub fn framing(bounds: &Aabb, aspect: f64) -> ViewCamera {
         let c = bounds.center().map(f64::from);
-        let radius = (0.5 * bounds.diagonal() as f64).max(1e-3);
+        let far = c.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let radius = (0.5 * bounds.diagonal() as f64).max(far * 1e-6);
+        let radius = if radius > 0.0 && radius.is_finite() {
+            radius
+        } else {
+            1e-3
+        };
         let fov: f64 = 45.0;
-        let dist = radius / (fov.to_radians() * 0.5).sin() * 1.05;
+        let half_v = fov.to_radians() * 0.5;
+        let half_h = (half_v.tan() * aspect).atan();
+        let dist = radius / half_v.min(half_h).sin() * 1.05;
         let dir = unit([0.55, 0.35, 1.0]).expect("constant is not zero");
         let eye = [
             c[0] + dir[0] * dist,
@@ -643,6 +654,63 @@ mod tests {
         let r = v.ray(0.5, 0.5, 1, 1);
         assert_eq!(r.org, [1.0, 2.0, 3.0]);
         assert_eq!(r.dir, [0.0, 0.0, -1.0]);
+    }
+
+    /// The angle (radians) between the view's axis and the direction to `p`, and the
+    /// half-angle of the image's narrower field of view.
+    fn off_axis(cam: &ViewCamera, p: [f64; 3], w: u32, h: u32) -> (f64, f64) {
+        let axis = cam.ray(f64::from(w) / 2.0, f64::from(h) / 2.0, w, h).dir;
+        let edge_x = cam.ray(0.0, f64::from(h) / 2.0, w, h).dir;
+        let edge_y = cam.ray(f64::from(w) / 2.0, 0.0, w, h).dir;
+        let angle = |a: [f32; 3], b: [f64; 3]| {
+            let a = a.map(f64::from);
+            let l = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+            ((a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / l)
+                .clamp(-1.0, 1.0)
+                .acos()
+        };
+        let e = cam.eye();
+        let to_p = [p[0] - e[0], p[1] - e[1], p[2] - e[2]];
+        let half = |d: [f32; 3]| angle(axis, d.map(f64::from));
+        (angle(axis, to_p), half(edge_x).min(half(edge_y)))
+    }
+
+    #[test]
+    fn framing_fits_the_bounds_in_portrait_and_at_any_size() {
+        for (w, h) in [(100, 100), (20, 100), (100, 20)] {
+            let mut shares = Vec::new();
+            for scale in [1e-5f32, 1e-3, 1.0, 1e3] {
+                let b = Aabb {
+                    min: [0.0, 0.0, 0.0],
+                    max: [scale, scale, scale],
+                };
+                let cam = ViewCamera::framing(&b, f64::from(w) / f64::from(h));
+                // Every corner of the box lies inside the narrower field of view.
+                let mut widest: f64 = 0.0;
+                for k in 0..8 {
+                    let corner = [0, 1, 2].map(|a| {
+                        if k >> a & 1 == 1 {
+                            f64::from(scale)
+                        } else {
+                            0.0
+                        }
+                    });
+                    let (off, half) = off_axis(&cam, corner, w, h);
+                    assert!(
+                        off < half,
+                        "{scale} {w}x{h}: corner {k} at {off}, edge at {half}"
+                    );
+                    widest = widest.max(off / half);
+                }
+                shares.push(widest);
+            }
+            // The same share of the view at every size.
+            let first = shares[0];
+            assert!(
+                shares.iter().all(|a| (a - first).abs() < 1e-3),
+                "{w}x{h}: {shares:?}"
+            );
+        }
     }
 
     #[test]
