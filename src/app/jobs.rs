@@ -218,14 +218,19 @@ impl App {
         };
         frames_on(geometry.key.version)?;
         if let crate::render::camera::CameraChoice::Scene(index) = request.camera {
-            if index >= cameras.len() {
+            use crate::render::camera::CameraError;
+            let missing = match cameras.get(index) {
+                None => Some(CameraError::NoSuchCamera {
+                    index,
+                    count: cameras.len(),
+                }),
+                Some(None) => Some(CameraError::NotPlaced { index }),
+                Some(Some(_)) => None,
+            };
+            if let Some(e) = missing {
                 return Err(AppError::Unprocessable {
                     field: "camera",
-                    detail: crate::render::camera::CameraError::NoSuchCamera {
-                        index,
-                        count: cameras.len(),
-                    }
-                    .to_string(),
+                    detail: e.to_string(),
                 });
             }
         }

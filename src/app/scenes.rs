@@ -182,7 +182,7 @@ fn too_many_triangles(count: u64, max: u64) -> String {
 }
 
 /// A scene's cameras at one pose.
-type Cameras = Arc<Vec<crate::scene::Camera>>;
+type Cameras = Arc<Vec<Option<crate::scene::Camera>>>;
 
 /// A parsed scene: its static pose, and the rig that poses it at other times.
 struct Loaded {
@@ -538,7 +538,7 @@ impl App {
         id: &str,
         version: Option<u32>,
         time: Option<f64>,
-    ) -> Result<(Geometry, Arc<Vec<crate::scene::Camera>>), AppError> {
+    ) -> Result<(Geometry, Cameras), AppError> {
         let latest = self.store().get_scene(id).await?.latest_version as u32;
         let version = version.unwrap_or(latest);
         if version == 0 || version > latest {

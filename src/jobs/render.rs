@@ -175,7 +175,7 @@ pub struct FrameInput {
     /// World-space triangles at the frame's time.
     pub geometry: Geometry,
     /// The scene's cameras at that time.
-    pub cameras: Arc<Vec<Camera>>,
+    pub cameras: Arc<Vec<Option<Camera>>>,
     /// Materials, shading attributes and lights at that time, when the request needs them
     /// ([`RenderRequest::needs_surfaces`]); `None`: glTF's default material everywhere.
     pub surfaces: Option<Arc<Surfaces>>,

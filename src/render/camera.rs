@@ -55,6 +55,12 @@ pub enum CameraError {
         /// Cameras in the scene.
         count: usize,
     },
+    /// `--camera INDEX` names a camera of the file that no node of the scene places.
+    #[error("camera {index} is placed by no node of the scene")]
+    NotPlaced {
+        /// Requested index.
+        index: usize,
+    },
     /// Eye equals target, up is parallel to the view direction, or a value is not finite.
     #[error("degenerate camera: {0}")]
     Degenerate(&'static str),
@@ -200,7 +206,7 @@ impl ViewCamera {
     /// The camera `choice` names among `cameras`, framing `bounds` by default.
     pub fn choose_from(
         choice: &CameraChoice,
-        cameras: &[Camera],
+        cameras: &[Option<Camera>],
         bounds: Option<Aabb>,
         aspect: f64,
     ) -> Result<ViewCamera, CameraError> {
@@ -210,6 +216,9 @@ impl ViewCamera {
                     index: *index,
                     count: cameras.len(),
                 })?;
+                let cam = cam
+                    .as_ref()
+                    .ok_or(CameraError::NotPlaced { index: *index })?;
                 ViewCamera::from_scene(cam, aspect)
             }
             CameraChoice::LookAt {

@@ -190,8 +190,10 @@ pub struct Scene {
     pub triangles: Vec<Triangle>,
     /// Number of glTF meshes in the file (0 for TRI1).
     pub meshes: usize,
-    /// Cameras, in the order the default scene's nodes reach them.
-    pub cameras: Vec<Camera>,
+    /// The file's cameras, by their index in glTF's `cameras` array, each where the first
+    /// node of the default scene (in pre-order) that places it puts it; `None` for a camera
+    /// no node of the scene places.
+    pub cameras: Vec<Option<Camera>>,
     /// Animations of the file.
     pub animations: Vec<AnimationInfo>,
     /// Per-vertex shading data; `None` for a geometry-only load.

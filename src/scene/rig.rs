@@ -171,6 +171,8 @@ pub enum Item {
     Camera {
         /// The node.
         node: usize,
+        /// Its index in the file's `cameras`.
+        index: usize,
         /// Its projection.
         projection: Projection,
     },
@@ -194,6 +196,8 @@ pub struct Rig {
     pub skins: Vec<Option<Skin>>,
     /// Mesh instances, cameras and lights in the default scene's pre-order.
     pub items: Vec<Item>,
+    /// How many cameras the file has (placed or not).
+    pub camera_count: usize,
     /// Whether the scene's shading data has a normal per vertex (then poses carry them).
     pub normals: bool,
     /// Whether the scene's shading data has a tangent per vertex.
@@ -220,8 +224,8 @@ pub struct Pose {
     pub normals: Vec<Vec3>,
     /// World tangents per shading vertex, `w` the handedness; zero where absent.
     pub tangents: Vec<Vec4>,
-    /// Cameras, in pre-order.
-    pub cameras: Vec<Camera>,
+    /// Cameras by the file's index (`Scene::cameras`).
+    pub cameras: Vec<Option<Camera>>,
     /// Light-to-world transforms, one per `Scene::lights` entry.
     pub lights: Vec<DMat4>,
 }
@@ -489,6 +493,7 @@ impl Rig {
         out.normals.clear();
         out.tangents.clear();
         out.cameras.clear();
+        out.cameras.resize(self.camera_count, None);
         out.lights.clear();
         let mut skins: Vec<Option<Vec<DMat4>>> = vec![None; self.skins.len()];
         for item in &self.items {
@@ -522,7 +527,13 @@ impl Rig {
                         }
                     }
                 }
-                Item::Camera { node, projection } => {
+                // A camera that an earlier node placed stays where that node put it.
+                Item::Camera { index, .. } if out.cameras[*index].is_some() => {}
+                Item::Camera {
+                    node,
+                    index,
+                    projection,
+                } => {
                     // Each local transform is finite, but a chain of large scales can
                     // overflow.
                     let w = world[*node];
@@ -532,7 +543,7 @@ impl Rig {
                             reason: "the camera's world transform is not finite".to_string(),
                         });
                     }
-                    out.cameras.push(Camera {
+                    out.cameras[*index] = Some(Camera {
                         to_world: w.to_cols_array_2d(),
                         projection: *projection,
                     });
@@ -876,6 +887,7 @@ mod tests {
                 weights: vec![],
                 primitives: vec![(0, Arc::new(prim))],
             })],
+            camera_count: 0,
             normals: true,
             tangents: false,
         }

@@ -499,6 +499,7 @@ pub fn load_limited(
             .collect(),
         channels: animations.channels,
         skins: vec![None; root.skins.len()],
+        camera_count: root.cameras.len(),
         ..Rig::default()
     };
     // The transforms of the pose asked for are checked before any mesh is decoded.
@@ -570,6 +571,7 @@ pub fn load_limited(
         if let Some(c) = node.camera.map(|c| c.value()) {
             rig.items.push(Item::Camera {
                 node: n,
+                index: c,
                 projection: projection(&root, c)?,
             });
         }
