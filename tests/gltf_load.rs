@@ -1001,6 +1001,9 @@ fn cameras_by_their_index_in_the_file() {
     );
     // Node 0 (under node 1) comes before node 2 in the pre-order.
     assert_eq!(persp.to_world[3], [0.0, 0.0, 5.0, 1.0]);
+    // The clipping planes: a perspective camera without zfar sees to infinity.
+    assert_eq!(persp.clip, [f64::from(0.1f32), f64::INFINITY]);
+    assert_eq!(ortho.clip, [f64::from(0.1f32), 10.0]);
 }
 
 #[test]

@@ -34,6 +34,9 @@ pub struct ViewCamera {
     up: [f64; 3],
     forward: [f64; 3],
     kind: ViewKind,
+    /// Clipping planes' distances along `forward` ([`Camera::clip`]); `[0, inf]` but for
+    /// a glTF camera that has them.
+    clip: [f64; 2],
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -129,6 +132,7 @@ impl ViewCamera {
                 half_w: half_h * aspect,
                 half_h,
             },
+            clip: NO_CLIP,
         })
     }
 
@@ -162,6 +166,7 @@ impl ViewCamera {
             up,
             forward: [-back[0], -back[1], -back[2]],
             kind,
+            clip: camera.clip,
         })
     }
 
@@ -379,16 +384,32 @@ impl ViewCamera {
                 for i in 0..N {
                     let d = unit_from(p[i], l[i]).unwrap_or(self.forward);
                     out[i] = ray(self.eye, d);
+                    // The planes are at distances along the view axis: along this ray they
+                    // are farther by 1 / cos of its angle to the axis.
+                    if self.clip != NO_CLIP {
+                        let cos = dot3(d, self.forward);
+                        out[i].tmin = (self.clip[0] / cos) as f32;
+                        out[i].tmax = (self.clip[1] / cos) as f32;
+                    }
                 }
             }
             ViewKind::Orthographic { .. } => {
                 for i in 0..N {
                     out[i] = ray(p[i], self.forward);
+                    out[i].tmin = self.clip[0] as f32;
+                    out[i].tmax = self.clip[1] as f32;
                 }
             }
         }
         out
     }
+}
+
+/// The clipping of a camera without planes: all of each ray.
+const NO_CLIP: [f64; 2] = [0.0, f64::INFINITY];
+
+fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// A camera ray from `org` along `dir`, rounded once to f32.
@@ -543,6 +564,7 @@ mod tests {
                 xmag: 4.0,
                 ymag: 3.0,
             },
+            clip: NO_CLIP,
         };
         let [near, far] = perspective_cameras();
         let cams = [
@@ -658,11 +680,44 @@ mod tests {
                 yfov: 0.8,
                 aspect: None,
             },
+            clip: NO_CLIP,
         };
         let v = ViewCamera::from_scene(&cam, 1.0).unwrap();
         let r = v.ray(0.5, 0.5, 1, 1);
         assert_eq!(r.org, [1.0, 2.0, 3.0]);
         assert_eq!(r.dir, [0.0, 0.0, -1.0]);
+        assert_eq!((r.tmin, r.tmax), (0.0, f32::INFINITY));
+        // Clipping planes are distances along the view axis: a ray at an angle θ to it
+        // meets them 1 / cos θ farther along itself.
+        let clipped = ViewCamera::from_scene(
+            &Camera {
+                clip: [0.5, 20.0],
+                ..cam
+            },
+            1.0,
+        )
+        .unwrap();
+        let r = clipped.ray(0.5, 0.5, 1, 1);
+        assert_eq!((r.tmin, r.tmax), (0.5, 20.0));
+        let r = clipped.ray(0.0, 0.5, 1, 1);
+        let cos = -f64::from(r.dir[2]);
+        assert!(cos < 0.95);
+        assert!((f64::from(r.tmin) - 0.5 / cos).abs() < 1e-6, "{r:?}");
+        assert!((f64::from(r.tmax) - 20.0 / cos).abs() < 1e-4, "{r:?}");
+        let ortho = ViewCamera::from_scene(
+            &Camera {
+                projection: Projection::Orthographic {
+                    xmag: 1.0,
+                    ymag: 1.0,
+                },
+                clip: [0.5, 20.0],
+                ..cam
+            },
+            1.0,
+        )
+        .unwrap();
+        let r = ortho.ray(0.0, 0.5, 1, 1);
+        assert_eq!((r.tmin, r.tmax), (0.5, 20.0));
     }
 
     /// The angle (radians) between the view's axis and the direction to `p`, and the

@@ -153,6 +153,9 @@ pub struct Camera {
     pub to_world: [[f64; 4]; 4],
     /// How the camera projects.
     pub projection: Projection,
+    /// Its clipping planes' distances along the view axis, glTF's `znear` and `zfar`
+    /// (`+inf` for a perspective camera without one): nothing nearer or farther is seen.
+    pub clip: [f64; 2],
 }
 
 /// A camera projection, as glTF stores it.

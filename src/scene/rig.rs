@@ -173,6 +173,8 @@ pub enum Item {
         node: usize,
         /// Its index in the file's `cameras`.
         index: usize,
+        /// Its clipping planes (`Camera::clip`).
+        clip: [f64; 2],
         /// Its projection.
         projection: Projection,
     },
@@ -533,6 +535,7 @@ impl Rig {
                     node,
                     index,
                     projection,
+                    clip,
                 } => {
                     // Each local transform is finite, but a chain of large scales can
                     // overflow.
@@ -546,6 +549,7 @@ impl Rig {
                     out.cameras[*index] = Some(Camera {
                         to_world: w.to_cols_array_2d(),
                         projection: *projection,
+                        clip: *clip,
                     });
                 }
                 Item::Light { node } => out.lights.push(world[*node]),

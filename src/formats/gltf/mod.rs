@@ -569,10 +569,12 @@ pub fn load_limited(
             }));
         }
         if let Some(c) = node.camera.map(|c| c.value()) {
+            let (projection, clip) = projection(&root, c)?;
             rig.items.push(Item::Camera {
                 node: n,
                 index: c,
-                projection: projection(&root, c)?,
+                projection,
+                clip,
             });
         }
         if appearance_read {
@@ -703,7 +705,10 @@ fn static_weights(root: &json::Root, n: usize, m: usize) -> Vec<f64> {
 }
 
 /// Camera `c`'s projection, checked.
-fn projection(root: &json::Root, c: usize) -> Result<Projection, GltfError> {
+/// Camera `c`'s projection and its clipping planes (`Camera::clip`). A clipping plane
+/// glTF would not allow (a negative or non-finite `znear`, a `zfar` not beyond it) clips
+/// nothing on its side, as a viewer that ignored clipping would show it.
+fn projection(root: &json::Root, c: usize) -> Result<(Projection, [f64; 2]), GltfError> {
     use json::camera::Type;
     let cam = &root.cameras[c];
     let bad = |reason: &str| GltfError::BadCamera {
@@ -723,10 +728,13 @@ fn projection(root: &json::Root, c: usize) -> Result<Projection, GltfError> {
             if p.aspect_ratio.is_some_and(|a| !finite_pos(a)) {
                 return Err(bad("aspectRatio must be a positive finite number"));
             }
-            Ok(Projection::Perspective {
-                yfov: f64::from(p.yfov),
-                aspect: p.aspect_ratio.map(f64::from),
-            })
+            Ok((
+                Projection::Perspective {
+                    yfov: f64::from(p.yfov),
+                    aspect: p.aspect_ratio.map(f64::from),
+                },
+                clip(p.znear, p.zfar),
+            ))
         }
         Checked::Valid(Type::Orthographic) => {
             let o = cam
@@ -736,11 +744,26 @@ fn projection(root: &json::Root, c: usize) -> Result<Projection, GltfError> {
             if !o.xmag.is_finite() || !o.ymag.is_finite() || o.xmag == 0.0 || o.ymag == 0.0 {
                 return Err(bad("xmag and ymag must be finite and non-zero"));
             }
-            Ok(Projection::Orthographic {
-                xmag: f64::from(o.xmag),
-                ymag: f64::from(o.ymag),
-            })
+            Ok((
+                Projection::Orthographic {
+                    xmag: f64::from(o.xmag),
+                    ymag: f64::from(o.ymag),
+                },
+                clip(o.znear, Some(o.zfar)),
+            ))
         }
         Checked::Invalid => Err(bad("invalid type")),
     }
+}
+
+/// glTF's `znear` and `zfar` as `Camera::clip`.
+fn clip(znear: f32, zfar: Option<f32>) -> [f64; 2] {
+    let near = f64::from(znear);
+    let near = if near.is_finite() && near > 0.0 {
+        near
+    } else {
+        0.0
+    };
+    let far = zfar.map(f64::from).filter(|f| f.is_finite() && *f > near);
+    [near, far.unwrap_or(f64::INFINITY)]
 }
