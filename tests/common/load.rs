@@ -666,8 +666,10 @@ impl Fixture {
 enum Step {
     /// Answered; the value is what the step needs next.
     Done(Answer),
-    /// Refused with 503 and Retry-After, or broken by a restart: try again.
+    /// Refused with 503 and Retry-After: try again.
     Again,
+    /// Broken by a restart (it may have taken effect before the answer): try again.
+    Cut,
 }
 
 /// A worker's view of the run.
@@ -720,7 +722,7 @@ impl Ctx<'_> {
                 while self.server.down.load(Ordering::SeqCst) {
                     std::thread::sleep(Duration::from_millis(20));
                 }
-                Ok(Step::Again)
+                Ok(Step::Cut)
             }
         }
     }
@@ -734,12 +736,30 @@ impl Ctx<'_> {
         ct: &str,
         body: &[u8],
     ) -> Result<Option<Answer>, String> {
+        Ok(self
+            .answer_after(kind, method, path, ct, body)?
+            .map(|(a, _)| a))
+    }
+
+    /// [`Self::answer`], and whether an earlier try was cut off by a restart (so that it
+    /// may have taken effect: a DELETE tried again then answers 404).
+    fn answer_after(
+        &self,
+        kind: Kind,
+        method: &str,
+        path: &str,
+        ct: &str,
+        body: &[u8],
+    ) -> Result<Option<(Answer, bool)>, String> {
+        let mut cut_off = false;
         loop {
             if Instant::now() > self.deadline + Duration::from_secs(60) {
                 return Ok(None);
             }
-            if let Step::Done(a) = self.send(kind, method, path, ct, body)? {
-                return Ok(Some(a));
+            match self.send(kind, method, path, ct, body)? {
+                Step::Done(a) => return Ok(Some((a, cut_off))),
+                Step::Cut => cut_off = true,
+                Step::Again => {}
             }
         }
     }
@@ -963,13 +983,17 @@ impl Ctx<'_> {
                 fx.uploads.lock().unwrap().insert(id.clone(), want.clone());
                 self.trace(Kind::SmallTrace, &id, None, &write_rays(&rays), &want)?;
                 let dpath = format!("/v1/scenes/{id}");
-                let Some(d) = self.answer(kind, "DELETE", &dpath, "", &[])? else {
+                // Asked to delete, it may be gone from now on (a restart's check may come
+                // between the deletion and its answer).
+                fx.uploads.lock().unwrap().remove(&id);
+                let Some((d, cut_off)) = self.answer_after(kind, "DELETE", &dpath, "", &[])? else {
                     return Ok(());
                 };
-                if !(200..300).contains(&d.status) {
+                // A try cut off by a restart may have deleted it before the answer.
+                let deleted = (200..300).contains(&d.status) || (cut_off && d.status == 404);
+                if !deleted {
                     return Err(format!("DELETE {dpath}: {}", d.describe()));
                 }
-                fx.uploads.lock().unwrap().remove(&id);
                 let secs = t0.elapsed().as_secs_f64();
                 self.count(kind, |s| s.latencies.push(secs));
                 Ok(())
