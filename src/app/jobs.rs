@@ -205,16 +205,11 @@ impl App {
         // error and not the job's.
         let asked = spec.version;
         let (geometry, cameras) = self.geometry(scene, asked, spec.time).await?;
-        // `frames` are times, which only version 1 has (as `time`'s check above says).
+        // `frames` are times, which only version 1 has (`time` was checked above).
         let has_frames = spec.frames.is_some();
-        let frames_on = move |version: u32| match has_frames {
-            true if version != 1 => Err(AppError::BadParameter {
-                field: "frames",
-                detail: format!(
-                    "version {version} holds positions only; frames evaluate version 1's animation"
-                ),
-            }),
-            _ => Ok(()),
+        let frames_on = move |version| match has_frames {
+            true => super::scenes::animated(version, "frames"),
+            false => Ok(()),
         };
         frames_on(geometry.key.version)?;
         if let crate::render::camera::CameraChoice::Scene(index) = request.camera {

@@ -549,14 +549,7 @@ impl App {
             .into());
         }
         if let Some(t) = time {
-            if version != 1 {
-                return Err(AppError::BadParameter {
-                    field: "time",
-                    detail: format!(
-                        "version {version} holds positions only; time evaluates version 1's animation"
-                    ),
-                });
-            }
+            animated(version, "time")?;
             if !t.is_finite() {
                 return Err(AppError::BadParameter {
                     field: "time",
@@ -719,6 +712,20 @@ fn on_trace_thread(
         })
         .map_err(|e| AppError::Internal(format!("cannot start a trace thread: {e}")))?;
     Ok(done)
+}
+
+/// Refuses animation times (`field`: a render's `time` or `frames`) for a `version` from 2
+/// on, which holds positions only: times evaluate version 1's animation (400).
+pub(super) fn animated(version: u32, field: &'static str) -> Result<(), AppError> {
+    if version == 1 {
+        return Ok(());
+    }
+    Err(AppError::BadParameter {
+        field,
+        detail: format!(
+            "version {version} holds positions only; {field} evaluates version 1's animation"
+        ),
+    })
 }
 
 /// A geometry update's TRI1 body that does not read (400, naming its byte).

@@ -88,6 +88,23 @@ pub struct InvalidRays {
     pub count: usize,
 }
 
+impl InvalidRays {
+    /// Adds what a check of a later part of the batch found (`later`, its indices counted
+    /// from `offset`) to the summary so far: the first bad ray stays the first.
+    pub fn absorb(summary: &mut Option<InvalidRays>, later: Option<InvalidRays>, offset: usize) {
+        let Some(later) = later else { return };
+        match summary {
+            Some(first) => first.count += later.count,
+            None => {
+                *summary = Some(InvalidRays {
+                    first_index: offset + later.first_index,
+                    ..later
+                })
+            }
+        }
+    }
+}
+
 impl std::fmt::Display for InvalidRays {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(

@@ -130,7 +130,6 @@ impl Scheduler {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
-            counted: priority != SYNC_PRIORITY,
             background: false,
         })
     }
@@ -177,7 +176,6 @@ impl Scheduler {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
-            counted: priority != SYNC_PRIORITY && !background,
             background,
         }
     }
@@ -190,7 +188,7 @@ impl Scheduler {
         let mut s = self.lock();
         let waiter = Waiter {
             started: ticket.started.load(Ordering::Acquire),
-            counted: ticket.counted,
+            counted: ticket.counted(),
         };
         s.waiting.insert(ticket.rank, waiter);
         loop {
@@ -201,7 +199,7 @@ impl Scheduler {
                     s.queued -= 1;
                     s.queued_background -= usize::from(ticket.background);
                     s.running += 1;
-                    if ticket.counted {
+                    if ticket.counted() {
                         s.running_counted += 1;
                     }
                 }
@@ -265,14 +263,17 @@ pub struct Ticket {
     sched: Arc<Scheduler>,
     rank: Rank,
     started: AtomicBool,
-    /// Whether it counts against `max_running` (every job but a synchronous trace and
-    /// background work).
-    counted: bool,
     /// Background work ([`Scheduler::background`]).
     background: bool,
 }
 
 impl Ticket {
+    /// Whether it counts against `max_running`: every job but a synchronous trace and
+    /// background work.
+    fn counted(&self) -> bool {
+        self.rank.0 .0 != SYNC_PRIORITY && !self.background
+    }
+
     /// The scheduler that admitted this ticket.
     pub fn scheduler(&self) -> &Arc<Scheduler> {
         &self.sched
@@ -289,7 +290,7 @@ impl Drop for Ticket {
         let mut s = self.sched.lock();
         if self.started.load(Ordering::Acquire) {
             s.running -= 1;
-            if self.counted {
+            if self.counted() {
                 s.running_counted -= 1;
                 // A job held back by `max_running` may start now.
                 self.sched.wake.notify_all();

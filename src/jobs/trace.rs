@@ -11,7 +11,7 @@ use std::time::Instant;
 use super::engine::Source;
 use super::{seconds_since, Control, Engine, Geometry, InvalidPolicy, JobError};
 use crate::accel::{AccelKind, BuildQuality, Precision, Query};
-use crate::formats::binary::{hit1_header, HEADER_BYTES};
+use crate::formats::binary::{hit1_header, Ray1Sink, HEADER_BYTES};
 use crate::formats::HitFormat;
 use crate::geometry::{Hit, InvalidRays, Ray, RaySegment};
 
@@ -110,44 +110,30 @@ pub fn validate_read(rays: &mut RaySegment, policy: InvalidPolicy) -> Result<usi
     settle(rays.validate(policy == InvalidPolicy::Miss), policy)
 }
 
-/// [`validate`]'s verdict under `error` on a whole RAY1 `body` whose header and length
-/// were checked ([`crate::formats::binary::ray_count`]), read in blocks rather than decoded
-/// into a second copy of the batch: an asynchronous trace refuses bad rays (422, naming the
-/// first and the count) before it is accepted, as a synchronous one does, not as a job
-/// that fails later. CPU work: run it on the pool.
+/// [`validate`]'s verdict under `error` on a whole RAY1 `body`, read through the RAY1
+/// reader in segments that are dropped once checked rather than into a second copy of the
+/// batch: an asynchronous trace refuses bad rays (422, naming the first and the count)
+/// before it is accepted, as a synchronous one does, not as a job that fails later. CPU
+/// work: run it on the pool.
 pub fn check_body(body: &[u8]) -> Result<(), JobError> {
-    const BLOCK: usize = 4096;
-    let records = body.get(HEADER_BYTES..).unwrap_or_default();
-    let mut found: Option<InvalidRays> = None;
-    let mut block = Vec::with_capacity(BLOCK);
-    for (b, bytes) in records.chunks(BLOCK * RAY_BYTES).enumerate() {
-        block.clear();
-        block.extend(bytes.chunks_exact(RAY_BYTES).map(|r| {
-            let f = |k: usize| f32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap());
-            Ray {
-                org: [f(0), f(1), f(2)],
-                tmin: f(3),
-                dir: [f(4), f(5), f(6)],
-                tmax: f(7),
-            }
-        }));
-        if let Some(bad) = Ray::validate_batch(&mut block, false) {
-            match &mut found {
-                Some(first) => first.count += bad.count,
-                None => {
-                    found = Some(InvalidRays {
-                        first_index: b * BLOCK + bad.first_index,
-                        ..bad
-                    })
-                }
-            }
-        }
+    const SEGMENT: usize = 4096;
+    let malformed = |e: crate::formats::binary::BinaryError| JobError::Invalid {
+        field: "rays",
+        detail: e.to_string(),
+    };
+    let mut reader = Ray1Sink::new(usize::MAX, Some(body.len() as u64)).segmented(SEGMENT);
+    let (mut bad, mut seen) = (None, 0);
+    let mut check = |mut segment: RaySegment| {
+        InvalidRays::absorb(&mut bad, segment.validate(false), seen);
+        seen += segment.rays.len();
+    };
+    for piece in body.chunks(SEGMENT * std::mem::size_of::<Ray>()) {
+        reader.push(piece).map_err(malformed)?;
+        reader.take_ready().for_each(&mut check);
     }
-    settle(found, InvalidPolicy::Error).map(|_| ())
+    check(reader.finish_segment().map_err(malformed)?);
+    settle(bad, InvalidPolicy::Error).map(|_| ())
 }
-
-/// Bytes of a RAY1 record.
-const RAY_BYTES: usize = 32;
 
 /// What `policy` makes of the bad rays a check found.
 fn settle(bad: Option<InvalidRays>, policy: InvalidPolicy) -> Result<usize, JobError> {
@@ -354,18 +340,8 @@ impl Engine {
             }
             let bad_here = segment.validate(replace);
             let rays = segment.rays;
-            if let Some(b) = bad_here {
-                invalid_rays += b.count;
-                match &mut bad {
-                    Some(first) => first.count += b.count,
-                    None => {
-                        bad = Some(InvalidRays {
-                            first_index: received + b.first_index,
-                            ..b
-                        })
-                    }
-                }
-            }
+            invalid_rays += bad_here.map_or(0, |b| b.count);
+            InvalidRays::absorb(&mut bad, bad_here, received);
             if replace || bad.is_none() {
                 let first = received;
                 trace_seconds += control.step(|| {

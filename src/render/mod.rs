@@ -24,7 +24,7 @@ use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
 use rng::Pcg32;
 use sampling::{basis, cosine_hemisphere, normalize};
-use surface::{coordinate_scale, offset_ray, surface_point, Presence, Surfaces};
+use surface::{offset_ray, surface_point, Presence, Surfaces};
 
 /// What a pixel shows.
 #[derive(
@@ -752,11 +752,7 @@ fn render_wave(
                     let nrm = facing_normal(tri, r.dir);
                     let d = cosine_hemisphere(nrm, p.rng.next_f32(), p.rng.next_f32());
                     ao_rays.push(Ray {
-                        org: offset_ray(
-                            surface_point(tri, hit.u, hit.v),
-                            nrm,
-                            coordinate_scale(tri),
-                        ),
+                        org: offset_ray(surface_point(tri, hit.u, hit.v), nrm, tri),
                         tmin: 0.0,
                         dir: d,
                         tmax: dist,
@@ -871,11 +867,7 @@ fn beyond(triangles: &[Triangle], ray: &Ray, hit: &Hit) -> Ray {
     let tri = &triangles[hit.prim as usize];
     let n = facing_normal(tri, ray.dir);
     Ray {
-        org: offset_ray(
-            surface_point(tri, hit.u, hit.v),
-            [-n[0], -n[1], -n[2]],
-            coordinate_scale(tri),
-        ),
+        org: offset_ray(surface_point(tri, hit.u, hit.v), [-n[0], -n[1], -n[2]], tri),
         tmin: 0.0,
         dir: ray.dir,
         tmax: (ray.tmax - hit.t).max(0.0),
@@ -1150,7 +1142,7 @@ fn shade_vertex(
     let (t, b, n) = (Vec3::from(t), Vec3::from(b), sp.ns);
     let local = |v: Vec3| Vec3::new(v.dot(t), v.dot(b), v.dot(n));
     let wo = local(-dir);
-    let org = offset_ray(pos.to_array(), sp.ng.to_array(), coordinate_scale(tri));
+    let org = offset_ray(pos.to_array(), sp.ng.to_array(), tri);
     if !lights.is_empty() {
         let u = [
             p.rng.next_f32(),
@@ -1178,7 +1170,7 @@ fn shade_vertex(
                 } else {
                     normal
                 };
-                let emitter = coordinate_scale(&frame.triangles[prim as usize]);
+                let emitter = &frame.triangles[prim as usize];
                 let target = Vec3::from(offset_ray(point.to_array(), side.to_array(), emitter));
                 let d = target - Vec3::from(org);
                 let dist = d.length();

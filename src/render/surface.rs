@@ -696,26 +696,27 @@ pub fn surface_point(tri: &Triangle, u: f32, v: f32) -> [f32; 3] {
 /// The magnitude that bounds the rounding of a point on `tri` and of the intersection
 /// tests against it: its largest vertex coordinate.
 #[inline]
-pub fn coordinate_scale(tri: &Triangle) -> f32 {
+fn coordinate_scale(tri: &Triangle) -> f32 {
     tri.v.iter().flatten().fold(0.0f32, |m, x| m.max(x.abs()))
 }
 
-/// How far [`offset_ray`] moves a point, relative to [`coordinate_scale`]: 2^-15, 256 ULPs
+/// How far [`offset_ray`] moves a point, relative to its triangle's scale: 2^-15, 256 ULPs
 /// of a coordinate at that scale, as Wächter and Binder's integer offset (Ray Tracing Gems,
 /// ch. 6) moves a coordinate of the point's own magnitude.
 const OFFSET_RELATIVE: f32 = 1.0 / 32768.0;
 
-/// A point just off the surface at `p` (on a triangle of [`coordinate_scale`] `scale`) on
-/// the side `n` (unit) faces, for the next ray. Wächter and Binder scale the offset with
+/// A point just off triangle `tri` at `p` (a point on it) on the side `n` (unit) faces, for
+/// the next ray. Wächter and Binder scale the offset with
 /// the point's own coordinates, and by a fixed 1/65536 near the origin; but what rounds is
 /// the triangle's arithmetic, at the scale of its vertices: a point at the middle of a
 /// kilometre-wide floor has coordinates near 0 and errors near 6e-5, which their fixed
-/// offset did not clear. So the point moves `scale · 2^-15` along `n`, which stays 256 ULPs
-/// above the rounding of the point and of the tests at any scale, and shrinks with tiny
-/// scenes instead of leaking light through their walls.
+/// offset did not clear. So the point moves 2^-15 of the triangle's largest vertex
+/// coordinate ([`coordinate_scale`]) along `n`, which stays 256 ULPs above the rounding of
+/// the point and of the tests at any scale, and shrinks with tiny scenes instead of leaking
+/// light through their walls.
 #[inline]
-pub fn offset_ray(p: [f32; 3], n: [f32; 3], scale: f32) -> [f32; 3] {
-    let d = (scale * OFFSET_RELATIVE).max(f32::MIN_POSITIVE);
+pub fn offset_ray(p: [f32; 3], n: [f32; 3], tri: &Triangle) -> [f32; 3] {
+    let d = (coordinate_scale(tri) * OFFSET_RELATIVE).max(f32::MIN_POSITIVE);
     std::array::from_fn(|k| p[k] + d * n[k])
 }
 
@@ -728,15 +729,19 @@ mod tests {
     fn offset_moves_to_the_normal_side_at_every_scale() {
         for scale in [1e-6f32, 1e-3, 0.5, 1.0, 1e3, 1e6, 1e19] {
             let p = [scale, -scale, 0.25 * scale];
+            // A triangle whose largest coordinate is `scale`, with `p` a vertex.
+            let tri = Triangle {
+                v: [p, [0.0; 3], [0.0; 3]],
+            };
             let n = [0.0, 0.0, 1.0];
-            let q = offset_ray(p, n, scale);
+            let q = offset_ray(p, n, &tri);
             assert!(q[2] > p[2], "{scale}: {q:?}");
             assert_eq!([q[0], q[1]], [p[0], p[1]]);
-            let q = offset_ray(p, [0.0, 0.0, -1.0], scale);
+            let q = offset_ray(p, [0.0, 0.0, -1.0], &tri);
             assert!(q[2] < p[2], "{scale}: {q:?}");
             // Near the origin of a large triangle the offset is the triangle's, not the
             // point's.
-            let q = offset_ray([0.0; 3], n, scale);
+            let q = offset_ray([0.0; 3], n, &tri);
             assert!(q[2] >= scale / 65536.0, "{scale}: {q:?}");
         }
     }
@@ -754,7 +759,7 @@ mod tests {
         let p = surface_point(&tri, 0.3, 0.4);
         assert_eq!(p[1], 0.0);
         assert_eq!(coordinate_scale(&tri), 1000.0);
-        let q = offset_ray(p, [0.0, 1.0, 0.0], coordinate_scale(&tri));
+        let q = offset_ray(p, [0.0, 1.0, 0.0], &tri);
         assert!(q[1] > 0.03 - 1e-3, "{q:?}");
     }
 

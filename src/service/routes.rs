@@ -681,35 +681,26 @@ fn async_stream(
             JobEvents::Ended(view) => {
                 let _ = tx.send(event_of(&view)).await;
             }
-            JobEvents::Live(mut rx) => {
-                let mut sent = None;
-                loop {
-                    let view = rx.borrow_and_update().clone();
-                    // A view set again unchanged (the job's end after its last progress
-                    // step, say) is not a change: one event for it.
-                    if sent.as_ref() != Some(&view) {
-                        if tx.send(event_of(&view)).await.is_err() {
-                            break;
-                        }
-                        sent = Some(view.clone());
-                    }
-                    if view.state.is_finished() {
-                        break;
-                    }
-                    tokio::select! {
-                        changed = rx.changed() => if changed.is_err() {
-                            // The job's thread is done: its last state was sent, or the job
-                            // was cancelled (its final view was sent by the canceller).
-                            let last = rx.borrow().clone();
-                            if sent.as_ref() != Some(&last) {
-                                let _ = tx.send(event_of(&last)).await;
-                            }
-                            break;
-                        },
-                        _ = shutdown.cancelled() => break,
-                    }
+            // The job's live view changes only when it differs (`App`'s `show`), so each
+            // change is one event.
+            JobEvents::Live(mut rx) => loop {
+                let view = rx.borrow_and_update().clone();
+                if tx.send(event_of(&view)).await.is_err() || view.state.is_finished() {
+                    break;
                 }
-            }
+                tokio::select! {
+                    changed = rx.changed() => if changed.is_err() {
+                        // The job's thread is done: its last state was sent, or the job
+                        // was cancelled (its final view was sent by the canceller).
+                        let last = rx.borrow().clone();
+                        if last != view {
+                            let _ = tx.send(event_of(&last)).await;
+                        }
+                        break;
+                    },
+                    _ = shutdown.cancelled() => break,
+                }
+            },
         }
     });
     tokio_stream_from(rx)
