@@ -669,3 +669,55 @@ fn render_frames_update_policy_decides_refit_or_rebuild() {
     ]);
     assert!(!ok && err.contains("never"), "{err}");
 }
+
+/// A scene file is read no further than its header declares: a TRI1 stream that goes on
+/// past its count (a pipe fed forever) is refused as soon as it does, not read until
+/// memory runs out, and a regular file longer than its header says is refused by size.
+#[test]
+fn scene_files_are_read_no_further_than_they_declare() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = write_tri(&[Triangle {
+        v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+    }]);
+    let fifo = dir.path().join("stream.tri");
+    let made = Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .expect("mkfifo runs");
+    assert!(made.success());
+    let writer = {
+        let (fifo, one) = (fifo.clone(), one.clone());
+        std::thread::spawn(move || {
+            use std::io::Write;
+            let mut f = std::fs::OpenOptions::new().write(true).open(&fifo).unwrap();
+            f.write_all(&one).unwrap();
+            let zeros = vec![0u8; 1 << 16];
+            // Until the reader goes away (a broken pipe), or 1 GiB as a bound on the test.
+            let mut sent = 0usize;
+            while sent < 1 << 30 && f.write_all(&zeros).is_ok() {
+                sent += zeros.len();
+            }
+            sent
+        })
+    };
+    let (ok, _, err) = rayd(&["info", p(&fifo)]);
+    assert!(
+        !ok && err.contains("goes on past the 52 bytes its TRI1 header declares"),
+        "{err}"
+    );
+    let sent = writer.join().unwrap();
+    assert!(
+        sent < 1 << 30,
+        "the reader read {sent} bytes past the header"
+    );
+
+    let long = dir.path().join("long.tri");
+    let mut bytes = one;
+    bytes.extend_from_slice(&[0u8; 100]);
+    std::fs::write(&long, &bytes).unwrap();
+    let (ok, _, err) = rayd(&["info", p(&long)]);
+    assert!(
+        !ok && err.contains("the file is 152 bytes, longer than the 52 bytes its TRI1 header"),
+        "{err}"
+    );
+}

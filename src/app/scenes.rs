@@ -363,6 +363,11 @@ impl App {
             // they would be on a server that had never seen them: a stored GLB sent as
             // TRI1 does not load as TRI1.
             if existing.content_type == kind.media_type() {
+                // The stored copy is written again where it is missing or damaged (moved
+                // to quarantine by a read that found it corrupt, cut short): uploading the
+                // same bytes is how a damaged scene is mended (proto/store.md). A whole copy
+                // only has its time renewed.
+                self.store().put_blob(bytes).await?;
                 // Uploading the bytes again is also how a failed thumbnail is tried again.
                 self.queue_thumbnail(&existing.id);
                 return Ok((SceneView::from_record(existing), false));

@@ -25,5 +25,6 @@ pub(super) fn run(a: BackupArgs) -> Result<serde_json::Value, CliError> {
         "out": a.out,
         "blobs": report.blobs,
         "bytes": report.bytes,
+        "dropped_versions": report.dropped_versions,
     }))
 }

@@ -289,16 +289,115 @@ fn write_whole(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
     if std::fs::metadata(path).is_ok_and(|m| !m.is_file()) {
         return std::fs::write(path, bytes);
     }
-    let name = path
-        .file_name()
-        .ok_or_else(|| std::io::Error::other("the path names no file"))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".rayd-{}.tmp", std::process::id()));
-    let tmp = path.with_file_name(tmp_name);
-    let written = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    let mut staged = Staged::default();
+    staged.write(path, bytes)?;
+    staged.commit()
+}
+
+/// Outputs of one command written all or none: each into a temporary file beside its
+/// path, all renamed over their paths only when the command has written every one
+/// ([`Staged::commit`]); dropped uncommitted (an error on the way), the temporary files
+/// are removed and no path has changed. A sequence of frames whose tenth fails leaves none
+/// of the first nine, and old files of those names stay as they were.
+#[derive(Default)]
+struct Staged {
+    /// (temporary file, final path), in the order written.
+    files: Vec<(std::path::PathBuf, std::path::PathBuf)>,
+}
+
+impl Staged {
+    /// Refuses, before any work, a path that exists and is not a regular file (a
+    /// directory): a rename over it would fail only after everything was made.
+    fn check(path: &std::path::Path) -> Result<(), CliError> {
+        match std::fs::metadata(path) {
+            Ok(m) if !m.is_file() => Err(CliError::Usage(format!(
+                "{}: the output exists and is not a regular file",
+                path.display()
+            ))),
+            _ => Ok(()),
+        }
     }
-    written
+
+    /// Writes `bytes` into a temporary file for `path`.
+    fn write(&mut self, path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
+        let name = path
+            .file_name()
+            .ok_or_else(|| std::io::Error::other("the path names no file"))?;
+        let mut tmp_name = std::ffi::OsString::from(".");
+        tmp_name.push(name);
+        tmp_name.push(format!(
+            ".rayd-{}-{}.tmp",
+            std::process::id(),
+            self.files.len()
+        ));
+        let tmp = path.with_file_name(tmp_name);
+        if let Err(e) = std::fs::write(&tmp, bytes) {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
+        self.files.push((tmp, path.to_owned()));
+        Ok(())
+    }
+
+    /// Renames every temporary file over its path, in order.
+    fn commit(mut self) -> std::io::Result<()> {
+        let files = std::mem::take(&mut self.files);
+        let mut left = files.iter();
+        for (tmp, path) in left.by_ref() {
+            if let Err(e) = std::fs::rename(tmp, path) {
+                let _ = std::fs::remove_file(tmp);
+                for (tmp, _) in left {
+                    let _ = std::fs::remove_file(tmp);
+                }
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Drop for Staged {
+    fn drop(&mut self) {
+        for (tmp, _) in &self.files {
+            let _ = std::fs::remove_file(tmp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Staged;
+
+    fn names(dir: &std::path::Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn staged_outputs_appear_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let (a, b) = (dir.path().join("a.png"), dir.path().join("b.png"));
+        std::fs::write(&a, b"old").unwrap();
+        {
+            let mut s = Staged::default();
+            s.write(&a, b"new a").unwrap();
+            s.write(&b, b"new b").unwrap();
+            // Dropped uncommitted, as on an error after these frames.
+        }
+        assert_eq!(names(dir.path()), ["a.png"]);
+        assert_eq!(std::fs::read(&a).unwrap(), b"old");
+        let mut s = Staged::default();
+        s.write(&a, b"new a").unwrap();
+        s.write(&b, b"new b").unwrap();
+        s.commit().unwrap();
+        assert_eq!(names(dir.path()), ["a.png", "b.png"]);
+        assert_eq!(std::fs::read(&b).unwrap(), b"new b");
+        std::fs::create_dir(dir.path().join("c.png")).unwrap();
+        assert!(Staged::check(&dir.path().join("c.png")).is_err());
+        assert!(Staged::check(&a).is_ok() && Staged::check(&dir.path().join("d.png")).is_ok());
+    }
 }

@@ -161,8 +161,13 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     };
     for k in 0..times.len() {
         super::refuse_overwriting(out_of(k).as_ref(), &[&a.scene])?;
+        if a.frames.is_some() {
+            super::Staged::check(out_of(k).as_ref())?;
+        }
     }
     let mut written = Vec::new();
+    // A sequence's frames appear together once all are made, or none does.
+    let mut staged = super::Staged::default();
     let report = engine.render(
         &request,
         &times,
@@ -170,7 +175,12 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         &engine.detached(),
         &mut |k, bytes| {
             let out = out_of(k);
-            super::write_whole(out.as_ref(), &bytes).map_err(|source| {
+            let wrote = if a.frames.is_some() {
+                staged.write(out.as_ref(), &bytes)
+            } else {
+                super::write_whole(out.as_ref(), &bytes)
+            };
+            wrote.map_err(|source| {
                 crate::jobs::JobError::Geometry(
                     FormatError::Io {
                         path: out.clone(),
@@ -183,6 +193,10 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             Ok(())
         },
     )?;
+    staged.commit().map_err(|source| FormatError::Io {
+        path: pattern.clone(),
+        source,
+    })?;
     let first = &report.frames[0];
     let mut out = json!({
         "out": written[0],

@@ -247,12 +247,29 @@ pub(super) struct HealthcheckArgs {
     timeout: f64,
 }
 
+/// The longest `--timeout` a probe takes, seconds.
+const MAX_PROBE_SECONDS: f64 = 86_400.0;
+
+/// The status code of an HTTP/1.x status line (RFC 9112 §4: `HTTP/1.d SP 3DIGIT SP
+/// reason`, the reason possibly empty), or `None` when the line is not one: `HTTP/1.1 2000`
+/// or `HTTP/1.1X200` is no 200.
+fn status_code(line: &str) -> Option<u16> {
+    let b = line.strip_prefix("HTTP/1.")?.as_bytes();
+    let well_formed = b.len() >= 5
+        && b[0].is_ascii_digit()
+        && b[1] == b' '
+        && b[2..5].iter().all(u8::is_ascii_digit)
+        && (b.len() == 5 || b[5] == b' ');
+    well_formed.then(|| b[2..5].iter().fold(0u16, |n, d| 10 * n + (d - b'0') as u16))
+}
+
 /// GETs the URL; succeeds (exit 0) only on a 200.
 pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliError> {
     let usage = CliError::Usage;
-    if !(a.timeout.is_finite() && a.timeout > 0.0) {
+    // A day bounds it: a probe that waits longer is not a health check.
+    if !(a.timeout.is_finite() && a.timeout > 0.0 && a.timeout <= MAX_PROBE_SECONDS) {
         return Err(usage(format!(
-            "--timeout {} is not a positive number of seconds",
+            "--timeout {} is not a number of seconds in (0, {MAX_PROBE_SECONDS}]",
             a.timeout
         )));
     }
@@ -261,9 +278,11 @@ pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliEr
         .url
         .strip_prefix("http://")
         .ok_or_else(|| usage(format!("--url {}: only http:// URLs can be probed", a.url)))?;
-    let (authority, path) = match rest.find('/') {
-        Some(i) => (&rest[..i], &rest[i..]),
-        None => (rest, "/"),
+    // The authority ends at the path, or at a query with no path (`http://h:8080?x`).
+    let (authority, path) = match rest.find(['/', '?']) {
+        Some(i) if rest[i..].starts_with('?') => (&rest[..i], format!("/{}", &rest[i..])),
+        Some(i) => (&rest[..i], rest[i..].to_owned()),
+        None => (rest, "/".to_owned()),
     };
     if authority.is_empty() || authority.contains('@') {
         return Err(usage(format!(
@@ -332,13 +351,33 @@ pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliEr
     }
     let line = String::from_utf8_lossy(&head);
     let line = line.lines().next().unwrap_or("");
-    let status = line
-        .strip_prefix("HTTP/1.")
-        .and_then(|r| r.get(2..5))
-        .and_then(|c| c.parse::<u16>().ok())
-        .ok_or_else(|| fail(format!("not an HTTP answer: {line:?}")))?;
+    let status = status_code(line).ok_or_else(|| fail(format!("not an HTTP answer: {line:?}")))?;
     if status != 200 {
         return Err(fail(format!("answered {status}, not 200")));
     }
     Ok(json!({ "url": a.url, "status": status }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::status_code;
+
+    #[test]
+    fn only_a_well_formed_status_line_has_a_code() {
+        assert_eq!(status_code("HTTP/1.1 200 OK"), Some(200));
+        assert_eq!(status_code("HTTP/1.0 503 Service Unavailable"), Some(503));
+        assert_eq!(status_code("HTTP/1.1 200"), Some(200));
+        assert_eq!(status_code("HTTP/1.1 200 "), Some(200));
+        for bad in [
+            "HTTP/1.1 2000 Weird",
+            "HTTP/1.1X200 OK",
+            "HTTP/1.1 20 OK",
+            "HTTP/1.1 2x0 OK",
+            "HTTP/1. 200 OK",
+            "HTTP/2 200 OK",
+            "",
+        ] {
+            assert_eq!(status_code(bad), None, "{bad:?}");
+        }
+    }
 }

@@ -82,12 +82,35 @@ pub(super) struct TradeoffArgs {
     time: Option<f64>,
 }
 
-fn write(path: &std::path::Path, bytes: &[u8]) -> Result<String, CliError> {
-    std::fs::write(path, bytes).map_err(|source| FormatError::Io {
-        path: path.display().to_string(),
-        source,
-    })?;
-    Ok(path.display().to_string())
+/// Writes the three outputs into `dir` all or none ([`super::Staged`]), making `dir`
+/// only now, after every option was checked and every render made: a run that fails
+/// leaves no directory and no file behind.
+fn write_all(dir: &std::path::Path, files: [(&str, &[u8]); 3]) -> Result<[String; 3], CliError> {
+    let io = |path: &std::path::Path| {
+        let path = path.display().to_string();
+        move |source| FormatError::Io { path, source }
+    };
+    let made = !dir.exists();
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let mut staged = super::Staged::default();
+    let mut written = Vec::new();
+    for (name, bytes) in files {
+        let path = dir.join(name);
+        let wrote = staged
+            .write(&path, bytes)
+            .and_then(|()| Ok(written.push(path.display().to_string())));
+        if let Err(e) = wrote {
+            drop(staged);
+            if made {
+                let _ = std::fs::remove_dir(dir);
+            }
+            return Err(io(&path)(e).into());
+        }
+    }
+    if let Err(e) = staged.commit() {
+        return Err(io(dir)(e).into());
+    }
+    Ok(written.try_into().expect("three files"))
 }
 
 pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
@@ -124,10 +147,12 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
         .max()
         .unwrap_or(a.bounces);
     setup.reference_bounces = a.reference_bounces.unwrap_or(most);
-    std::fs::create_dir_all(&a.out).map_err(|source| FormatError::Io {
-        path: a.out.display().to_string(),
-        source,
-    })?;
+    if a.out.exists() && !a.out.is_dir() {
+        return Err(CliError::Usage(format!(
+            "{}: the output directory exists and is not a directory",
+            a.out.display()
+        )));
+    }
     let path = a.scene.display().to_string();
     let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), Parts::Shading)?;
     let posed = match a.time {
@@ -163,12 +188,19 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
             row.errors.rmse
         );
     })?;
-    let csv = write(&a.out.join("tradeoff.csv"), report::csv(&result).as_bytes())?;
-    let table = write(
-        &a.out.join("tradeoff.md"),
-        report::markdown(&result).as_bytes(),
+    let (csv, table, plot) = (
+        report::csv(&result),
+        report::markdown(&result),
+        report::plot(&result)?,
+    );
+    let [csv, table, plot] = write_all(
+        &a.out,
+        [
+            ("tradeoff.csv", csv.as_bytes()),
+            ("tradeoff.md", table.as_bytes()),
+            ("tradeoff.png", &plot),
+        ],
     )?;
-    let plot = write(&a.out.join("tradeoff.png"), &report::plot(&result)?)?;
     Ok(json!({
         "scene": path,
         "width": result.width,

@@ -85,12 +85,103 @@ pub enum Parts {
     CheckedGeometry,
 }
 
-/// Reads a whole file, naming it in the error.
+/// The most a scene read from a stream (a pipe, a device) that declares no length of its
+/// own (a JSON `.gltf`) may hold: the service's default body limit, so that a stream that
+/// never ends (`/dev/zero`) is refused with memory to spare. A regular file's own size
+/// bounds it instead.
+pub const MAX_STREAMED_SCENE_BYTES: u64 = 1 << 30;
+
+/// Reads a whole scene file, naming it in the error. The file's header bounds what is
+/// read: a TRI1 (16 + 36 × its count) or GLB (its length field) is read to one byte past
+/// what it declares, so a file or stream that goes on past that is refused at once rather
+/// than read to its end (a pipe fed forever would otherwise take all memory). A JSON glTF
+/// declares nothing: a regular file is read whole, a stream to
+/// [`MAX_STREAMED_SCENE_BYTES`]. Anything else is refused by its parser from its first bytes.
 pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
-    std::fs::read(path).map_err(|source| FormatError::Io {
+    use std::io::Read;
+    let io = |source: std::io::Error| FormatError::Io {
         path: path.display().to_string(),
         source,
-    })
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    // A regular file's size; a stream's is unknown.
+    let size = file
+        .metadata()
+        .ok()
+        .filter(|m| m.is_file())
+        .map(|m| m.len());
+    let mut bytes = Vec::with_capacity(binary::HEADER_BYTES);
+    (&mut file)
+        .take(binary::HEADER_BYTES as u64)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    let (limit, declared) = match bound_of(&bytes) {
+        Bound::Declared(n, kind) => (n, Some((n, kind))),
+        Bound::Json => (size.unwrap_or(MAX_STREAMED_SCENE_BYTES), None),
+        // No scene starts so: the parser refuses it from these bytes alone.
+        Bound::Refused => return Ok(bytes),
+    };
+    let too_long = |len: Option<u64>| {
+        let bound = match declared {
+            Some((n, kind)) => format!("the {n} bytes its {kind} header declares"),
+            None => format!("{MAX_STREAMED_SCENE_BYTES} bytes, the most a streamed scene may be"),
+        };
+        let msg = match len {
+            Some(len) => format!("the file is {len} bytes, longer than {bound}"),
+            None => format!("the stream goes on past {bound}"),
+        };
+        io(std::io::Error::new(std::io::ErrorKind::InvalidData, msg))
+    };
+    if let Some(len) = size.filter(|&len| len > limit) {
+        return Err(too_long(Some(len)));
+    }
+    let expect = size.unwrap_or(0).min(limit) as usize;
+    bytes.reserve(expect.saturating_sub(bytes.len()));
+    file.take(limit.saturating_add(1).saturating_sub(bytes.len() as u64))
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(too_long(size));
+    }
+    Ok(bytes)
+}
+
+/// How much of a scene file its first bytes allow to be read.
+enum Bound {
+    /// The whole length the file declares, and the format that declares it: TRI1's
+    /// header count (16 + 36 × count) or GLB's length field.
+    Declared(u64, &'static str),
+    /// A JSON glTF (it starts with `{`, white space or a byte-order mark): no length of
+    /// its own.
+    Json,
+    /// None of those: the parser refuses it from its first bytes.
+    Refused,
+}
+
+fn bound_of(head: &[u8]) -> Bound {
+    if head.starts_with(b"TRI1") {
+        if let Ok(count) = binary::tri_header_count(head) {
+            let len = 36u64
+                .saturating_mul(count as u64)
+                .saturating_add(binary::HEADER_BYTES as u64);
+            return Bound::Declared(len, "TRI1");
+        }
+        return Bound::Refused;
+    }
+    if head.starts_with(b"glTF") {
+        return match head.get(8..12) {
+            Some(n) => Bound::Declared(
+                u32::from_le_bytes(n.try_into().unwrap_or_default()) as u64,
+                "GLB",
+            ),
+            None => Bound::Refused,
+        };
+    }
+    let json = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+    match json.first() {
+        None | Some(b'{' | b' ' | b'\t' | b'\n' | b'\r') => Bound::Json,
+        Some(_) => Bound::Refused,
+    }
 }
 
 /// Loads a `.glb`, `.gltf` (embedded or side-by-side buffers) or `.tri` scene: geometry

@@ -151,8 +151,11 @@ impl BlobDir {
             let name = entry.file_name();
             let name = name.to_string_lossy();
             if name == "tmp" {
+                // Only files are ours; anything else put there by hand is left alone.
                 for tmp in read_dir(&path)? {
-                    remove_file(&tmp.path())?;
+                    if tmp.file_type().is_ok_and(|t| !t.is_dir()) {
+                        remove_file(&tmp.path())?;
+                    }
                 }
                 continue;
             }
@@ -176,6 +179,22 @@ impl BlobDir {
             root,
             quota: Quota::new(max_bytes, used),
         })
+    }
+
+    /// Whether any blob file is stored (a file named by a blob id in a shard directory).
+    pub(crate) fn holds_any(&self) -> Result<bool> {
+        for entry in read_dir(&self.root)? {
+            let name = entry.file_name();
+            if !is_shard_name(&name.to_string_lossy()) || !entry.path().is_dir() {
+                continue;
+            }
+            for file in read_dir(&entry.path())? {
+                if BlobId::parse(&file.file_name().to_string_lossy()).is_some() {
+                    return Ok(true);
+                }
+            }
+        }
+        Ok(false)
     }
 
     /// Stores `bytes` (whose id the caller computed) durably. If the blob is already there

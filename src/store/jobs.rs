@@ -148,7 +148,13 @@ impl Store {
             .fetch_optional(&mut *conn)
             .await?
             .ok_or_else(|| StoreError::not_found("job", id))?;
-        with_frames(&mut conn, &row).await
+        let job = with_frames(&mut conn, &row).await?;
+        // Past its `expires_at` a job is gone, whether or not the next cleanup pass has
+        // deleted its rows yet (it runs once a minute, and first a minute after a start).
+        if expired(&job, super::records::now_millis()) {
+            return Err(StoreError::not_found("job", id));
+        }
+        Ok(job)
     }
 
     /// A page of jobs, oldest first, and the token of the next page (`None` on the last).
@@ -193,12 +199,17 @@ impl Store {
         for row in rows.iter().take(n as usize) {
             jobs.push(with_frames(&mut conn, row).await?);
         }
+        // The token follows the last row read, listed or not, so that a page whose jobs
+        // expired is shorter but the next one starts where it ended (AIP-158 allows
+        // short pages).
         let next = if more {
             jobs.last()
                 .map(|j| encode_page_token(ListKind::Jobs, j.created_at, &j.id))
         } else {
             None
         };
+        let now = super::records::now_millis();
+        jobs.retain(|j| !expired(j, now));
         Ok((jobs, next))
     }
 
@@ -395,4 +406,9 @@ impl Store {
             Err(e) => e.into(),
         }
     }
+}
+
+/// Whether `job` is past its `expires_at` at `now`: gone to every reader.
+fn expired(job: &JobRecord, now: Millis) -> bool {
+    job.expires_at.is_some_and(|at| at <= now)
 }

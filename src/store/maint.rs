@@ -2,7 +2,7 @@
 //! backup.
 
 use std::collections::HashSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::SystemTime;
 
@@ -242,7 +242,15 @@ impl Store {
     }
 }
 
-/// The work of a backup, from a connection to the source database and its blobs.
+/// Times a backup beside a live server starts again from a new snapshot when the server
+/// deleted a scene's newest version (with its file) before the copy came to it.
+const BACKUP_ATTEMPTS: usize = 3;
+
+/// The work of a backup, from a connection to the source database and its blobs. The
+/// copy is made in a staging directory beside `dest` and renamed to it only when whole:
+/// a backup that fails or is killed leaves no `dest` that opens as a store with files
+/// missing, and can be run again into the same `dest` (a leftover staging directory of
+/// a killed one is named `.DEST.rayd-backup-PID.tmp`).
 async fn backup_into(
     conn: &mut SqliteConnection,
     blobs_root: &Path,
@@ -250,7 +258,7 @@ async fn backup_into(
     dest: &Path,
 ) -> Result<BackupReport> {
     let dest = dest.to_path_buf();
-    match std::fs::read_dir(&dest) {
+    let dest_exists = match std::fs::read_dir(&dest) {
         Ok(mut entries) => {
             if entries.next().is_some() {
                 return Err(StoreError::invalid(
@@ -258,10 +266,69 @@ async fn backup_into(
                     format!("{} exists and is not empty", dest.display()),
                 ));
             }
+            true
         }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
         Err(e) => return Err(StoreError::io(&dest, e)),
+    };
+    let name = dest.file_name().ok_or_else(|| {
+        StoreError::invalid(
+            "backup destination",
+            format!("{} names no directory", dest.display()),
+        )
+    })?;
+    let parent = match dest.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut staged_name = std::ffi::OsString::from(".");
+    staged_name.push(name);
+    staged_name.push(format!(".rayd-backup-{}.tmp", std::process::id()));
+    let staging = parent.join(staged_name);
+    let clear = |staging: PathBuf| async move {
+        blocking(dir, move || match std::fs::remove_dir_all(&staging) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+            Err(e) => Err(StoreError::io(&staging, e)),
+        })
+        .await
+    };
+    let mut attempt = 0;
+    let report = loop {
+        attempt += 1;
+        clear(staging.clone()).await?;
+        match backup_once(conn, blobs_root, dir, &staging).await {
+            Err(StoreError::NotFound { what: "blob", .. }) if attempt < BACKUP_ATTEMPTS => {}
+            Err(e) => {
+                let _ = clear(staging.clone()).await;
+                return Err(e);
+            }
+            Ok(report) => break report,
+        }
+    };
+    let (s, d) = (staging.clone(), dest.clone());
+    let placed = blocking(dir, move || {
+        if dest_exists {
+            std::fs::remove_dir(&d).map_err(|e| StoreError::io(&d, e))?;
+        }
+        std::fs::rename(&s, &d).map_err(|e| StoreError::io(&d, e))?;
+        sync_dir(&parent)
+    })
+    .await;
+    if placed.is_err() {
+        let _ = clear(staging).await;
     }
+    placed.map(|()| report)
+}
+
+/// One attempt of [`backup_into`], into the new directory `dest`.
+async fn backup_once(
+    conn: &mut SqliteConnection,
+    blobs_root: &Path,
+    dir: &Path,
+    dest: &Path,
+) -> Result<BackupReport> {
+    let dest = dest.to_path_buf();
     let db = dest.join(DB_FILE);
     let db_text = db.to_str().ok_or_else(|| {
         StoreError::invalid(
@@ -378,7 +445,15 @@ async fn drop_pruned_versions(db: &Path, missing: &[BlobId]) -> Result<u64> {
         .bind(id.as_str())
         .fetch_one(&mut conn)
         .await?;
-        if other {
+        // A scene's newest version gone as well: the copy would name a version it does
+        // not hold, so the backup starts again from a newer snapshot.
+        let latest: bool = sqlx::query_scalar(
+            "SELECT EXISTS (SELECT 1 FROM scene_versions v JOIN scenes s              ON s.id = v.scene_id AND s.latest_version = v.version WHERE v.blob = ?1)",
+        )
+        .bind(id.as_str())
+        .fetch_one(&mut conn)
+        .await?;
+        if other || latest {
             return Err(StoreError::not_found("blob", id.as_str()));
         }
         dropped += sqlx::query("DELETE FROM scene_versions WHERE blob = ?")

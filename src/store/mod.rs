@@ -141,7 +141,8 @@ struct Inner {
     /// Woken when `pruned` gains blobs.
     pruned_ready: tokio::sync::Notify,
     /// The flock on `DIR/lock`; released when the last clone drops (or the process dies).
-    _lock: File,
+    /// The lock file and the data directory, locked while the store is open.
+    _lock: (File, Option<File>),
 }
 
 impl Store {
@@ -156,11 +157,29 @@ impl Store {
             let dir = dir.clone();
             blocking(&dir.clone(), move || take_lock(&dir)).await?
         };
+        let no_database = !dir.join(DB_FILE).exists();
         let blobs = {
             let root = dir.join("blobs");
             let max = options.max_bytes;
             Arc::new(blocking(&dir, move || BlobDir::prepare(root, max)).await?)
         };
+        // Stored files without the database that names them (a restore that copied only
+        // `blobs/`, a database deleted by hand): opened as an empty store, GC would delete
+        // every file once its grace passed. Refused, so that they can still be mended.
+        if no_database {
+            let b = Arc::clone(&blobs);
+            if blocking(&dir, move || b.holds_any()).await? {
+                return Err(StoreError::invalid(
+                    "data directory",
+                    format!(
+                        "{} has stored files in blobs/ but no {DB_FILE}, the database that \
+                         names them: put back the {DB_FILE} they belong to (a backup's), or \
+                         move blobs/ away to start an empty store",
+                        dir.display()
+                    ),
+                ));
+            }
+        }
         let mut connect = SqliteConnectOptions::new()
             .filename(dir.join(DB_FILE))
             .create_if_missing(true)
@@ -416,8 +435,24 @@ where
 }
 
 /// Creates the data directory if needed and takes the exclusive flock on `DIR/lock`.
-fn take_lock(dir: &Path) -> Result<File> {
+fn take_lock(dir: &Path) -> Result<(File, Option<File>)> {
     blob::create_dir_durable(dir)?;
+    // The directory itself is locked as well: a lock file can be unlinked while held (a
+    // hand's `rm DIR/lock`), and a second server would then lock a new one and write the
+    // same store; the directory cannot be replaced under a server. Where a file system
+    // cannot lock a directory, the lock file alone guards it.
+    let held_dir = match File::open(dir) {
+        Ok(d) => match fs4::FileExt::try_lock(&d) {
+            Ok(()) => Some(d),
+            Err(fs4::TryLockError::WouldBlock) => {
+                return Err(StoreError::Locked {
+                    dir: dir.to_path_buf(),
+                })
+            }
+            Err(fs4::TryLockError::Error(_)) => None,
+        },
+        Err(_) => None,
+    };
     let path = dir.join(LOCK_FILE);
     let file = File::options()
         .read(true)
@@ -427,7 +462,7 @@ fn take_lock(dir: &Path) -> Result<File> {
         .open(&path)
         .map_err(|e| StoreError::io(&path, e))?;
     match fs4::FileExt::try_lock(&file) {
-        Ok(()) => Ok(file),
+        Ok(()) => Ok((file, held_dir)),
         Err(fs4::TryLockError::WouldBlock) => Err(StoreError::Locked {
             dir: dir.to_path_buf(),
         }),

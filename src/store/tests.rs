@@ -267,6 +267,43 @@ async fn the_lock_refuses_a_second_open_until_the_first_is_dropped() {
     again.put_blob(b"works".to_vec()).await.unwrap();
 }
 
+/// The lock holds when its file is unlinked by hand: the data directory itself is
+/// locked, so a second store cannot open it by making a new lock file.
+#[tokio::test]
+async fn the_lock_holds_when_its_file_is_removed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = open(tmp.path()).await;
+    std::fs::remove_file(tmp.path().join("lock")).unwrap();
+    assert!(matches!(
+        Store::open(tmp.path(), opts()).await,
+        Err(StoreError::Locked { .. })
+    ));
+    store.close().await;
+}
+
+/// Stored files without their database are refused, not opened as an empty store whose
+/// GC would then delete them all; an empty `blobs/` (or none) opens.
+#[tokio::test]
+async fn blobs_without_their_database_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = open(tmp.path()).await;
+    let s = scene(&store, b"kept").await;
+    store.close().await;
+    for f in ["rayd.db", "rayd.db-wal", "rayd.db-shm"] {
+        let _ = std::fs::remove_file(tmp.path().join(f));
+    }
+    match Store::open(tmp.path(), opts()).await {
+        Err(e @ StoreError::Invalid { .. }) => {
+            assert!(e.to_string().contains("no rayd.db"), "{e}");
+        }
+        other => panic!("expected Invalid, got {:?}", other.map(|_| ())),
+    }
+    let blob = tmp.path().join("blobs").join(&s.id[..2]).join(&s.id);
+    assert_eq!(std::fs::read(&blob).unwrap(), b"kept");
+    std::fs::remove_file(&blob).unwrap();
+    open(tmp.path()).await.close().await;
+}
+
 #[tokio::test]
 async fn migrations_are_recorded_and_run_once() {
     let tmp = tempfile::tempdir().unwrap();
@@ -913,6 +950,43 @@ async fn recover_requeues_jobs_a_crash_left_running() {
     );
     // It runs again normally.
     store.start_job(&running.id).await.unwrap();
+}
+
+/// Past its `expires_at` a job is gone to every reader at once, before the cleanup pass
+/// (once a minute) deletes its rows: not answered, not listed, its result not served.
+#[tokio::test]
+async fn an_expired_job_is_gone_before_cleanup_deletes_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        result_ttl: Some(Duration::from_millis(1)),
+        ..opts()
+    };
+    let store = Store::open(tmp.path(), options).await.unwrap();
+    let s = scene(&store, b"scene").await;
+    let (job, _) = store.create_job(render_job(&s)).await.unwrap();
+    let (queued, _) = store.create_job(render_job(&s)).await.unwrap();
+    store.start_job(&job.id).await.unwrap();
+    store
+        .finish_job(
+            &job.id,
+            JobOutcome::Succeeded {
+                stats: None,
+                result: None,
+                frames: vec![],
+            },
+        )
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(20)).await;
+    assert!(matches!(
+        store.get_job(&job.id).await,
+        Err(StoreError::NotFound { .. })
+    ));
+    let (listed, next) = store.list_jobs(10, None).await.unwrap();
+    let ids: Vec<&str> = listed.iter().map(|j| j.id.as_str()).collect();
+    assert_eq!((ids, next), (vec![queued.id.as_str()], None));
+    // Its rows are still there until the cleanup pass.
+    assert_eq!(store.expire(super::records::now_millis()).await.unwrap(), 1);
 }
 
 #[tokio::test]
@@ -1570,11 +1644,38 @@ async fn a_backup_leaves_out_versions_whose_blobs_went_after_its_snapshot() {
         .collect();
     assert_eq!(versions, [1, 3]);
     c.close().await;
-    std::fs::remove_file(file(&s.id)).unwrap();
+    // The newest version's file gone: the copy would report version 3 without holding
+    // it, so the backup fails (after starting again from new snapshots) and leaves
+    // nothing, neither `again` nor its staging directory.
+    let newest = std::fs::read(file(blobs[1].as_str())).unwrap();
+    std::fs::remove_file(file(blobs[1].as_str())).unwrap();
+    let again = tmp.path().join("again");
     assert!(matches!(
-        Store::backup_dir(&data, tmp.path().join("again")).await,
+        Store::backup_dir(&data, &again).await,
         Err(StoreError::NotFound { what: "blob", .. })
     ));
+    let left = |dir: &Path| {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    };
+    assert_eq!(left(tmp.path()), ["copy", "data"]);
+    std::fs::write(file(blobs[1].as_str()), newest).unwrap();
+    std::fs::remove_file(file(&s.id)).unwrap();
+    assert!(matches!(
+        Store::backup_dir(&data, &again).await,
+        Err(StoreError::NotFound { what: "blob", .. })
+    ));
+    assert_eq!(left(tmp.path()), ["copy", "data"]);
+    // Mended, it runs again into the same (now empty) destination.
+    std::fs::write(file(&s.id), b"moving").unwrap();
+    std::fs::create_dir(&again).unwrap();
+    let report = Store::backup_dir(&data, &again).await.unwrap();
+    assert_eq!((report.blobs, report.dropped_versions), (2, 1));
+    assert_eq!(left(tmp.path()), ["again", "copy", "data"]);
 }
 
 /// A real full disk: a 4 MiB tmpfs, where mounting works (as root with the capability; the
