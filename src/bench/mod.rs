@@ -392,7 +392,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
             });
             drop(ref_accel);
             if let Some(dir) = &config.dump {
-                raysets::dump(dir, path, view_kind, &sets)?;
+                raysets::dump(dir, path, view_kind, &view.triangles, &sets)?;
             }
             let mut scene_report = SceneReport {
                 scene: path.display().to_string(),

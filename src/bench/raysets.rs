@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use super::{BenchError, View, ViewKind};
 use crate::accel::{Intersector, Query};
 use crate::formats::binary;
-use crate::geometry::{Hit, Ray};
+use crate::geometry::{Hit, Ray, Triangle};
 use crate::render::rng::Pcg32;
 use crate::render::sampling::cosine_hemisphere;
 use crate::render::{facing_normal, offset_origin};
@@ -188,8 +188,16 @@ pub fn make_sets(
 }
 
 /// Writes every set as `<scene>-<view>-<set>.ray` (RAY1) and the reference hits as
-/// `….hit` (HIT1; AO sets in the `occluded` format).
-pub fn dump(dir: &Path, scene: &Path, view: ViewKind, sets: &[RaySet]) -> Result<(), BenchError> {
+/// `….hit` (HIT1; AO sets in the `occluded` format), and the triangles they were traced
+/// against as `<scene>-<view>.tri` (TRI1): the hits' ids name those, which in an interior
+/// view are the scene's followed by the room's walls.
+pub fn dump(
+    dir: &Path,
+    scene: &Path,
+    view: ViewKind,
+    traced: &[Triangle],
+    sets: &[RaySet],
+) -> Result<(), BenchError> {
     let io = |path: &Path, source| BenchError::Io {
         path: path.display().to_string(),
         source,
@@ -199,6 +207,10 @@ pub fn dump(dir: &Path, scene: &Path, view: ViewKind, sets: &[RaySet]) -> Result
         .file_stem()
         .and_then(|s| s.to_str())
         .unwrap_or("scene");
+    // The triangles the sets were traced against, whose ids the hits name: the scene's
+    // (same ids) and then, in an interior view, the room's walls around it.
+    let tri_path = dir.join(format!("{stem}-{}.tri", view.name()));
+    std::fs::write(&tri_path, binary::write_tri(traced)).map_err(|e| io(&tri_path, e))?;
     for set in sets {
         let base = format!("{stem}-{}-{}", view.name(), set.kind.name());
         let ray_path = dir.join(format!("{base}.ray"));

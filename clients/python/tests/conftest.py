@@ -54,11 +54,12 @@ def _free_port() -> int:
 class Server:
     """A running ``rayd serve``: its URL, data directory and log."""
 
-    def __init__(self, binary: Path, data_dir: Path, *args: str):
-        self.port = _free_port()
+    def __init__(self, binary: Path, data_dir: Path, *args: str, port: int | None = None):
+        # ``port``: that of a server stopped before, to start it again where it was.
+        self.port = _free_port() if port is None else port
         self.url = f"http://127.0.0.1:{self.port}"
         self.log_path = data_dir.parent / f"serve-{self.port}.log"
-        self._log = open(self.log_path, "wb")
+        self._log = open(self.log_path, "ab")
         self.proc = subprocess.Popen(
             [str(binary), "serve", "--addr", f"127.0.0.1:{self.port}",
              "--data-dir", str(data_dir), *args],

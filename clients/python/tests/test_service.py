@@ -7,11 +7,17 @@ wrong place, a rounding on the way, a lost parameter).
 
 from __future__ import annotations
 
+import concurrent.futures
+import pickle
 import shutil
+import signal
 import subprocess
+import threading
+import time
 
 import numpy as np
 import pytest
+import requests
 from conftest import SCENES, Server
 from helpers import rays_at, rayd_trace
 
@@ -145,6 +151,22 @@ def test_cast_rays_has_open3d_names_dtypes_shapes_and_miss_values(fox, fox_rays)
     assert np.array_equal(ans["primitive_uvs"].reshape(-1, 2)[:, 1], hits["v"])
 
 
+def test_cast_rays_answers_invalid_rays_as_misses_when_asked(fox, fox_rays):
+    origins, directions = fox_rays[0][:50].copy(), fox_rays[1][:50].copy()
+    origins[1, 0] = np.nan
+    directions[2] = 0
+    rays = np.concatenate([origins, directions], axis=1)
+    with pytest.raises(rayd.ProblemError) as e:
+        fox.cast_rays(rays)
+    assert e.value.status == 422 and e.value.ray_index == 1
+    ans = fox.cast_rays(rays, invalid="miss")
+    assert np.isinf(ans["t_hit"][[1, 2]]).all()
+    assert (ans["primitive_ids"][[1, 2]] == rayd.INVALID_ID).all()
+    want = fox.trace(origins, directions, invalid="miss")
+    assert np.array_equal(ans["t_hit"], want["t"]) and np.array_equal(ans["primitive_ids"],
+                                                                      want["prim"])
+
+
 def test_cast_rays_normals_are_the_traced_triangles_face_normals(fox, fox_rays):
     origins, directions = fox_rays
     ans = fox.cast_rays(np.concatenate([origins, directions], axis=1))
@@ -231,6 +253,62 @@ def test_a_tri1_upload_traces_like_rayd_trace_on_the_same_file(rayd_bin, client,
     scene.delete()
 
 
+def _tri1_scene(client, offset):
+    """A TRI1 scene of two triangles at ``offset`` (its id differs from other tests')."""
+    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]],
+                     [[0, 0, 1], [1, 0, 1], [0, 1, 1]]], np.float32) + np.float32(offset)
+    body = bytes(formats.encode_triangles(tris))
+    return client.upload(body), body, tris
+
+
+def test_a_frame_loop_keeps_the_positions_of_a_few_versions_only(client):
+    # The server keeps 16 versions; a client sending positions every frame must not keep
+    # them all (client.CACHED_VERSIONS, 4, are kept; 10 leaves room to tune that).
+    scene, _, tris = _tri1_scene(client, 21.5)
+    o = np.array([[21.95, 21.95, 30]], np.float32)  # inside every frame's triangles
+    d = np.array([[0, 0, -1]], np.float32)
+    for k in range(24):
+        moved = tris + np.float32(k / 64)
+        hits = scene.frame(moved, o, d)
+        ans = scene.cast_rays(np.concatenate([o, d], axis=1))
+        assert len(scene._known) < 10, "every version was kept"
+    assert np.array_equal(scene.triangles(hits.version), moved)
+    made = [scene.update_geometry(tris - np.float32(k / 64)) for k in range(24)]
+    assert len(scene._known) < 10, "every version was kept"
+    # What is kept still answers right, and what was dropped is fetched again.
+    assert np.array_equal(scene.triangles(), tris - np.float32(23 / 64))
+    assert np.array_equal(scene.triangles(made[-10]), tris - np.float32(14 / 64))
+    assert ans["primitive_ids"][0] == 1 and ans["primitive_normals"][0].tolist() == [0, 0, 1]
+    scene.delete()
+
+
+def test_a_scene_made_again_under_its_id_is_not_answered_from_the_old_ones_positions(client):
+    scene, body, tris = _tri1_scene(client, 31.5)
+    scene.update_geometry(tris * np.float32(2))  # version 2, known to `scene`
+    assert scene.triangles(2) is not None and len(scene._known) > 0
+    # Another client deletes it and uploads the same bytes: the same id, versions from 1.
+    other = rayd.Client(client.url)
+    other.delete(scene.id)
+    again = other.upload(body)
+    assert again.id == scene.id and again.version == 1
+    flipped = tris[:, ::-1] * np.float32(3)  # the other winding: normals turn over
+    assert again.update_geometry(flipped) == 2
+    assert np.array_equal(scene.triangles(2), flipped), "version 2 of the deleted scene"
+    assert np.array_equal(scene.triangles(), flipped)
+    ray = np.array([[94.8, 94.8, 1000, 0, 0, -1]], np.float32)  # inside both at 3x
+    ans = scene.cast_rays(ray, version=2)
+    assert ans["primitive_ids"][0] != rayd.INVALID_ID
+    want = rayd.face_normals(flipped, ans["primitive_ids"])
+    assert np.array_equal(ans["primitive_normals"], want)
+    # Its own delete() forgets everything it knew of the scene.
+    scene.delete()
+    assert len(scene._known) == 0
+    third = client.upload(body)
+    third.update_geometry(tris + np.float32(1))
+    assert np.array_equal(scene.triangles(2), tris + np.float32(1))
+    third.delete()
+
+
 # -- secondary rays -----------------------------------------------------------------------
 
 
@@ -260,6 +338,32 @@ def test_spawned_rays_never_hit_their_own_triangle_and_naive_ones_do(fox, fox_ra
     naive_o = origins + hits["t"][:, None] * directions
     naive = fox.trace(naive_o[rays.valid], out[rays.valid])
     assert (naive["prim"] == hits["prim"][rays.valid]).any(), "the test can fail"
+
+
+def test_rays_spawned_from_misses_miss_in_open3d_layout_too(client, fox, fox_rays):
+    box = client.upload(SCENES / "Box.glb")  # the unit cube about the origin
+    o = np.array([[0, 0, 5], [3, 3, 5]], np.float32)  # the first hits the top, the other misses
+    d = np.array([[0, 0, -1], [0, 0, -1]], np.float32)
+    up = rayd.spawn_rays(box.trace(o, d), np.array([0, 0, 1], np.float32), box.triangles())
+    assert up.valid.tolist() == [True, False]
+    assert (box.trace(**up)["prim"] == rayd.INVALID_ID).all()
+    assert (box.cast_rays(up.as_open3d())["primitive_ids"] == rayd.INVALID_ID).all(), \
+        "a ray of a miss hit the cube from inside"
+    # Many rays, some of misses, leaving in every direction: both ways agree ray for ray.
+    hits = fox.trace(*fox_rays)
+    rng = np.random.default_rng(11)
+    rays = rayd.spawn_rays(hits, rng.normal(size=(len(hits["t"]), 3)).astype(np.float32),
+                           fox.triangles())
+    assert (~rays.valid).any() and rays.valid.any()
+    traced = fox.trace(**rays)
+    ans = fox.cast_rays(rays.as_open3d())
+    assert np.array_equal(ans["primitive_ids"], traced["prim"])
+    assert np.array_equal(ans["t_hit"], traced["t"])
+    # A finite tmax, which Open3D's layout cannot hold, goes with cast_rays' tmax.
+    short = rayd.spawn_rays(hits, rng.normal(size=(len(hits["t"]), 3)).astype(np.float32),
+                            fox.triangles(), tmax=2.0)
+    ans = fox.cast_rays(short.as_open3d(), tmax=short["tmax"])
+    assert np.array_equal(ans["primitive_ids"], fox.trace(**short)["prim"])
 
 
 # -- rendering ----------------------------------------------------------------------------
@@ -297,6 +401,65 @@ def test_cancel_stops_a_running_render(client, fox):
     assert client.job(job.id).state == "cancelled"
 
 
+def test_jobs_are_listed_oldest_first_as_the_docstring_says(client, fox):
+    first = fox.render(width=8, height=8, seed=101)
+    last = fox.render(width=8, height=8, seed=102)
+    ids = [j.id for j in client.jobs()]
+    assert ids.index(first.id) < ids.index(last.id)
+    assert "oldest first" in rayd.Client.jobs.__doc__
+
+
+def _busy_server(rayd_bin, tmp_path, *args):
+    srv = Server(rayd_bin, tmp_path / "data", "--max-running", "1", "--threads", "1", *args)
+    srv.wait_ready(rayd.Client(srv.url))
+    return srv
+
+
+def test_wait_with_a_timeout_raises_timeout_error_when_nothing_happens(rayd_bin, tmp_path):
+    srv = _busy_server(rayd_bin, tmp_path)
+    try:
+        c = rayd.Client(srv.url)
+        fox = c.upload(SCENES / "Fox.glb")
+        busy = fox.render(width=1024, height=1024, spp=4096, integrator="path")
+        queued = fox.render(width=8, height=8)  # waits for the only running slot
+        start = time.monotonic()
+        with pytest.raises(TimeoutError, match="still queued"):
+            queued.wait(progress=False, timeout=1.0)
+        assert time.monotonic() - start < 10
+        busy.cancel()
+        queued.cancel()
+    finally:
+        srv.stop()
+
+
+def test_wait_outlives_a_restart_of_the_server(rayd_bin, tmp_path):
+    srv = _busy_server(rayd_bin, tmp_path, "--grace", "1")
+    c = rayd.Client(srv.url, timeout=60)
+    fox = c.upload(SCENES / "Fox.glb")
+    job = fox.render(width=512, height=512, spp=128, integrator="path")
+    stopped = []
+
+    def restart():
+        nonlocal srv
+        time.sleep(0.5)
+        stopped.append(time.time() * 1000)
+        srv.proc.send_signal(signal.SIGTERM)
+        srv.proc.wait(timeout=30)
+        srv.stop()
+        srv = Server(rayd_bin, tmp_path / "data", "--max-running", "1", "--threads", "1",
+                     port=srv.port)
+
+    thread = threading.Thread(target=restart)
+    thread.start()
+    try:
+        job.wait(progress=False, timeout=120, check=False)
+        assert job.state == "succeeded", job.info
+        assert job.info["finished_at"] > stopped[0], "the job ended before the restart"
+    finally:
+        thread.join()
+        srv.stop()
+
+
 # -- errors -------------------------------------------------------------------------------
 
 
@@ -312,6 +475,31 @@ def test_invalid_rays_raise_a_problem_with_its_members(fox, fox_rays):
     assert err.instance and err.title and "ray 3" in err.detail
     answered = fox.trace(origins, directions, invalid="miss")
     assert np.isinf(answered["t"][[3, 8]]).all()
+
+
+def _raise(err):
+    raise err
+
+
+def test_problems_and_job_errors_survive_pickling_and_a_process_pool(fox):
+    with pytest.raises(rayd.ProblemError) as e:
+        fox.trace([0, 0, 5], [0, 0, 0])  # a zero direction: 422
+    err = e.value
+    err.add_note("a note")
+    back = pickle.loads(pickle.dumps(err))
+    assert type(back) is rayd.ProblemError and str(back) == str(err)
+    assert back.__dict__ == err.__dict__ and back.ray_index == 0 and back.__notes__ == ["a note"]
+    job_err = rayd.JobError({"id": "x", "state": "failed", "error": "boom"})
+    again = pickle.loads(pickle.dumps(job_err))
+    assert again.job == job_err.job and str(again) == str(job_err)
+    with concurrent.futures.ProcessPoolExecutor(1) as pool:
+        with pytest.raises(rayd.ProblemError) as e:
+            pool.submit(_raise, err).result()
+        assert e.value.status == 422 and e.value.extras == err.extras
+        assert e.value.instance == err.instance and e.value.url == err.url
+        with pytest.raises(rayd.JobError, match="boom") as e:
+            pool.submit(_raise, job_err).result()
+        assert e.value.job == job_err.job
 
 
 def test_a_bad_parameter_names_its_field(fox, fox_rays):
@@ -342,6 +530,30 @@ def test_a_token_is_sent_and_its_absence_is_a_401(rayd_bin, tmp_path):
         with pytest.raises(rayd.ProblemError) as e:
             rayd.Client(srv.url, token="wrong").scenes()
         assert e.value.status == 401
+    finally:
+        srv.stop()
+
+
+def test_clients_sharing_a_session_keep_their_own_tokens(rayd_bin, tmp_path, server):
+    tokens = tmp_path / "tokens"
+    tokens.write_text("first-token\nsecond-token\n")
+    srv = Server(rayd_bin, tmp_path / "data", "--token-file", str(tokens))
+    try:
+        shared = requests.Session()
+        a = rayd.Client(srv.url, token="first-token", session=shared)
+        srv.wait_ready(a)
+        assert a.scenes() == []
+        b = rayd.Client(server.url, token="for-another-server", session=shared)
+        b.scenes()
+        assert a.scenes() == [], "b's token replaced a's"
+        assert "Authorization" not in shared.headers, "the caller's session was changed"
+        with pytest.raises(rayd.ProblemError) as e:
+            rayd.Client(srv.url, session=shared).scenes()
+        assert e.value.status == 401
+        # A session that carries its own header still works with no token given.
+        own = requests.Session()
+        own.headers["Authorization"] = "Bearer second-token"
+        assert rayd.Client(srv.url, session=own).scenes() == []
     finally:
         srv.stop()
 

@@ -79,3 +79,36 @@ def test_triangle_normals_agree_with_face_normals_and_zero_degenerate_ones():
     ids = np.arange(50, dtype=np.uint32)
     assert np.array_equal(table[ids != 7], rayd.face_normals(tris, ids)[ids != 7])
     assert (table[7] == 0).all()
+
+
+def _enters_box(o, d, lo, hi) -> np.ndarray:
+    """Whether each ray ``o + t·d`` (t >= 0) meets the box ``lo``–``hi`` (slab test)."""
+    o, d = o.astype(np.float64), d.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - o) / d, (hi - o) / d
+    inside = (o >= lo) & (o <= hi)
+    near = np.where(d == 0, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    far = np.where(d == 0, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    return far.min(axis=1) >= np.maximum(near.max(axis=1), 0)
+
+
+def test_spawned_rays_of_misses_leave_the_triangles_bounds_without_their_interval():
+    # Rays.as_open3d() has no tmin/tmax: the rays of misses must miss by where they go.
+    rng = np.random.default_rng(3)
+    tris = (rng.uniform(-1, 1, size=(40, 3, 3)) * [30, 2, 5] + [7, -3, 2]).astype(np.float32)
+    n = 500
+    prim = np.where(rng.uniform(size=n) < 0.5, rng.integers(0, 40, n), rayd.INVALID_ID)
+    hits = {"prim": prim.astype(np.uint32), "u": np.full(n, 0.25, np.float32),
+            "v": np.full(n, 0.25, np.float32)}
+    dirs = rng.normal(size=(n, 3)).astype(np.float32)
+    dirs[:5] = 0  # unusable: replaced by (0, 0, 1)
+    rays = rayd.spawn_rays(hits, dirs, tris)
+    miss = ~rays.valid
+    assert miss.sum() > 100
+    assert np.isinf(rays["tmin"][miss]).all() and np.isinf(rays["tmax"][miss]).all()
+    o, d = rays.as_open3d()[miss, :3], rays.as_open3d()[miss, 3:]
+    assert np.isfinite(o).all() and (d != 0).any(axis=1).all()
+    lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
+    assert not _enters_box(o, d, lo, hi).any(), "a ray of a miss crosses the triangles"
+    kept = miss & (np.arange(n) >= 5)
+    assert np.array_equal(rays["directions"][kept], dirs[kept]), "directions are kept"

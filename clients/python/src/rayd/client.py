@@ -19,10 +19,12 @@ import io
 import json
 import os
 import time as _time
+from collections import OrderedDict
 from urllib.parse import quote
 
 import numpy as np
 import requests
+import urllib3
 
 from . import formats
 from .errors import FormatError, JobError, ProblemError
@@ -41,6 +43,11 @@ _HIT_UV = np.dtype({"names": ["uv"], "formats": ["V8"], "offsets": [8], "itemsiz
 OCTET = "application/octet-stream"
 FRAME_MEDIA = "application/x-rayd-frame"
 """A frame's body: TRI1 positions, then RAY1 rays."""
+CACHED_VERSIONS = 4
+"""How many geometry versions (a version and animation time each) a :class:`Scene` keeps
+the positions and normals of. A frame loop needs the newest, a comparison of two versions
+two; the server keeps 16 versions by default, and one that was dropped here is one
+``GET …/geometry`` away, while keeping every version a client sends grows without end."""
 
 
 class Hits(dict):
@@ -114,6 +121,19 @@ def _server_timing(value: str | None) -> dict:
     return out
 
 
+def _dropped(err: requests.ConnectionError) -> bool:
+    """Whether ``err`` is a connection that closed (or was reset) before any byte of the
+    answer, as a pooled keep-alive connection does when the server closes it for being
+    idle just as the request goes out; not a refused or timed-out connection."""
+    reason = err.args[0] if err.args else None
+    if not isinstance(reason, urllib3.exceptions.ProtocolError) or len(reason.args) < 2:
+        return False
+    # http.client's RemoteDisconnected ("closed connection without response") is a
+    # ConnectionResetError.
+    return isinstance(reason.args[1], (ConnectionResetError, ConnectionAbortedError,
+                                       BrokenPipeError))
+
+
 def _media_type_of(data: bytes) -> str | None:
     """The upload media type a body's first bytes show, if they show one."""
     head = bytes(data[:16])
@@ -133,7 +153,15 @@ class Client:
     ``--token-file``. ``timeout`` (seconds) bounds connecting and each wait for bytes.
     A 503 (queue full, body budget or per-client bound reached; always with
     ``Retry-After``) is retried up to ``retries`` times after the delay the server asks for;
-    every other error status raises :class:`rayd.ProblemError`.
+    every other error status raises :class:`rayd.ProblemError`. A request that is safe to
+    send again (a read, a synchronous trace, an upload, a job submitted with an
+    idempotency key) is sent once more on a new connection when its connection closed
+    before any byte of the answer: the server closes idle keep-alive connections, and one
+    can close just as a request goes out on it.
+
+    ``session`` may be shared with other code: the token goes with each request this
+    client sends, never into the session's headers, so clients with other tokens (or
+    none) can share it.
     """
 
     def __init__(
@@ -149,8 +177,7 @@ class Client:
         self.timeout = timeout
         self.retries = retries
         self._http = session or requests.Session()
-        if token is not None:
-            self._http.headers["Authorization"] = f"Bearer {token}"
+        self._auth = {} if token is None else {"Authorization": f"Bearer {token}"}
 
     def __repr__(self):
         return f"rayd.Client({self.url!r})"
@@ -168,28 +195,53 @@ class Client:
         headers=None,
         stream=False,
         timeout=None,
+        replay: bool | None = None,
+        done_on_replay: tuple = (),
     ) -> requests.Response:
+        """Sends one request, retrying a 503 with ``Retry-After``.
+
+        ``replay`` says whether the request may be sent again when its connection closed
+        before any answer (a pooled connection the server closed at its idle timeout);
+        the default is yes for GET and HEAD only, since a request that makes something
+        (a version, a job) could have been received and acted on. It is sent again once,
+        on a new connection (urllib3 drops the dead one). ``done_on_replay`` are statuses
+        that mean, on the replay, that the first sending did its work (a DELETE's 404):
+        the response is returned instead of raised."""
         params = {k: v for k, v in (params or {}).items() if v is not None}
-        for attempt in range(self.retries + 1):
-            resp = self._http.request(
-                method,
-                self.url + path,
-                params=params,
-                json=json_body,
-                data=data,
-                headers=headers,
-                stream=stream,
-                timeout=self.timeout if timeout is None else timeout,
-            )
+        headers = {**self._auth, **(headers or {})}
+        if replay is None:
+            replay = method in ("GET", "HEAD")
+        replayed = False
+        attempt = 0
+        while True:
+            try:
+                resp = self._http.request(
+                    method,
+                    self.url + path,
+                    params=params,
+                    json=json_body,
+                    data=data,
+                    headers=headers,
+                    stream=stream,
+                    timeout=self.timeout if timeout is None else timeout,
+                )
+            except requests.ConnectionError as e:
+                if replay and not replayed and _dropped(e):
+                    replayed = True
+                    continue
+                raise
             if resp.status_code < 400:
+                return resp
+            if replayed and resp.status_code in done_on_replay:
+                resp.close()
                 return resp
             err = ProblemError.from_response(resp)
             resp.close()
             if resp.status_code == 503 and err.retry_after is not None and attempt < self.retries:
+                attempt += 1
                 _time.sleep(min(max(err.retry_after, 0.05), 30.0))
                 continue
             raise err
-        raise AssertionError("unreachable")  # pragma: no cover
 
     def _json(self, method, path, **kw):
         resp = self._request(method, path, **kw)
@@ -213,7 +265,7 @@ class Client:
         last = None
         while True:
             try:
-                resp = self._http.get(self.url + "/readyz", timeout=2.0)
+                resp = self._http.get(self.url + "/readyz", headers=self._auth, timeout=2.0)
                 if resp.status_code == 200:
                     return
                 last = f"/readyz answered {resp.status_code}"
@@ -248,11 +300,13 @@ class Client:
                 f"cannot tell the scene format of {where}: pass content_type= "
                 f"({', '.join(sorted(set(_MEDIA.values())))})"
             )
-        info = self._json("POST", "/v1/scenes", data=data, headers={"Content-Type": content_type})
+        # Safe to send again: the same bytes make the same scene (the first one's, 200).
+        info = self._json("POST", "/v1/scenes", data=data, replay=True,
+                          headers={"Content-Type": content_type})
         scene = Scene(self, info)
         if content_type == TRI_MEDIA:
             # The positions of version 1 are the uploaded records themselves.
-            scene._known[(1, None)] = formats.decode_triangles(bytes(data))
+            scene._remember(1, None, formats.decode_triangles(bytes(data)))
         return scene
 
     def scene(self, scene_id: str) -> Scene:
@@ -272,7 +326,14 @@ class Client:
     def delete(self, scene) -> None:
         """Deletes a scene (a :class:`Scene` or an id) and every version of it."""
         scene_id = scene.id if isinstance(scene, Scene) else scene
-        self._request("DELETE", f"/v1/scenes/{quote(scene_id, safe='')}")
+        if isinstance(scene, Scene):
+            # Uploading the same bytes again makes a scene with this id whose versions
+            # count from 1 again: nothing known of this one may answer for it.
+            scene._known.clear()
+        # Sent again if its connection closed unanswered; a 404 to that means the first
+        # one deleted it.
+        self._request("DELETE", f"/v1/scenes/{quote(scene_id, safe='')}",
+                      replay=True, done_on_replay=(404,))
 
     # -- jobs -----------------------------------------------------------------------------
 
@@ -281,7 +342,7 @@ class Client:
         return Job(self, self._json("GET", f"/v1/jobs/{quote(job_id, safe='')}"))
 
     def jobs(self) -> list[Job]:
-        """Every job the server keeps, newest first (all pages)."""
+        """Every job the server keeps, oldest first (all pages), as the server lists them."""
         out, token = [], None
         while True:
             page = self._json("GET", "/v1/jobs", params={"limit": 1000, "page_token": token})
@@ -289,6 +350,51 @@ class Client:
             token = page.get("next_page_token")
             if not token:
                 return out
+
+
+class _Known:
+    """Positions (and face normals) of the :data:`CACHED_VERSIONS` geometry versions used
+    last, each a dict ``{"triangles": (T, 3, 3), "normals": (T + 1, 3)}``, the least
+    recently used dropped first.
+
+    Keys are ``(generation, version, time)``. Scene ids come from the uploaded bytes, so a
+    scene deleted and uploaded again has the same id and versions counting from 1 again,
+    with other positions from version 2 on: the generation is the scene's ``created_at``
+    (which the new upload changes) for versions from 2 on, and None for version 1, which
+    is the uploaded file itself and the same in every generation."""
+
+    def __init__(self, size: int = CACHED_VERSIONS):
+        self._entries: OrderedDict = OrderedDict()
+        self.size = size
+
+    def __len__(self):
+        return len(self._entries)
+
+    def get(self, key) -> dict | None:
+        entry = self._entries.get(key)
+        if entry is not None:
+            self._entries.move_to_end(key)
+        return entry
+
+    def put(self, key, triangles) -> dict:
+        entry = {"triangles": triangles}
+        self._entries[key] = entry
+        self._entries.move_to_end(key)
+        while len(self._entries) > max(self.size, 1):
+            self._entries.popitem(last=False)
+        return entry
+
+    def holds(self, version, time) -> bool:
+        """Whether some generation's positions of ``version`` at ``time`` are here."""
+        return any(k[1:] == (version, time) for k in self._entries)
+
+    def keep_generation(self, generation) -> None:
+        """Drops the entries of every other generation (version 1's stay)."""
+        for key in [k for k in self._entries if k[1] != 1 and k[0] != generation]:
+            del self._entries[key]
+
+    def clear(self) -> None:
+        self._entries.clear()
 
 
 class Scene:
@@ -299,8 +405,8 @@ class Scene:
         self.client = client
         self.info = info
         self.id = info["id"]
-        # Positions known without asking: (version, time) -> (T, 3, 3) float32.
-        self._known: dict = {}
+        # Positions known without asking, of the few versions used last.
+        self._known = _Known()
 
     def __repr__(self):
         return (
@@ -321,6 +427,9 @@ class Scene:
     def refresh(self) -> dict:
         """Fetches the summary again (``version`` moves with geometry updates)."""
         self.info = self.client._json("GET", self._path)
+        # A new created_at is a new scene under the same id (deleted, uploaded again):
+        # the positions known of the old one's versions are not this one's.
+        self._known.keep_generation(self.info.get("created_at"))
         return self.info
 
     @property
@@ -338,12 +447,33 @@ class Scene:
         """The world-space triangles traced at ``version`` (default: the latest) and
         ``time`` (version 1 only): ``(T, 3, 3)`` float32, rows ``v0, v1, v2``, in id order.
 
-        Fetched from ``GET /v1/scenes/{id}/geometry`` (TRI1) once per version and time;
-        positions this object uploaded are known without asking."""
-        if version is None:
+        Fetched from ``GET /v1/scenes/{id}/geometry`` (TRI1) and kept for the
+        :data:`CACHED_VERSIONS` versions used last; positions this object uploaded are
+        known without asking. Kept positions of a version after the first are answered
+        only after the scene's summary shows it is still the scene they were fetched
+        from (one small ``GET``), since a scene deleted and uploaded again has the same
+        id and versions that count from 1 again."""
+        fresh = version is None
+        if fresh:
             version = self.version
-        key = (version, None if time is None else float(time))
-        if key not in self._known:
+        return self._entry(version, time, fresh)["triangles"]
+
+    def _key(self, version, time):
+        """The :class:`_Known` key of ``version``/``time`` in the generation last seen."""
+        generation = None if version == 1 else self.info.get("created_at")
+        return (generation, version, None if time is None else float(time))
+
+    def _entry(self, version, time, fresh: bool) -> dict:
+        """The known positions of ``version``/``time``, fetched when not known. ``fresh``:
+        the summary was fetched just now, so its generation is the server's."""
+        t = None if time is None else float(time)
+        if version != 1 and not fresh and self._known.holds(version, t):
+            self.refresh()  # which scene the server has under this id now
+        # The generation is the one seen before the positions are asked for: if the
+        # scene is made again in between, they are filed under one never seen again.
+        key = self._key(version, t)
+        entry = self._known.get(key)
+        if entry is None:
             _, body = self.client._binary(
                 "GET", f"{self._path}/geometry", params={"version": version, "time": time}
             )
@@ -353,32 +483,39 @@ class Scene:
                     f"TRI1: {tris.shape[0]} triangles answered for a scene of "
                     f"{self.info['triangles']}"
                 )
-            self._known[key] = tris
-        return self._known[key]
+            entry = self._known.put(key, tris)
+        return entry
 
-    def _normals(self, version, time) -> np.ndarray:
+    def _normals(self, version, time, fresh: bool = False) -> np.ndarray:
         """Unit face normals of every triangle at ``version``/``time``, plus a zero row."""
-        key = ("normals", version, None if time is None else float(time))
-        if key not in self._known:
-            n = triangle_normals(self.triangles(version, time))
-            self._known[key] = np.concatenate([n, np.zeros((1, 3), np.float32)])
-        return self._known[key]
+        entry = self._entry(version, time, fresh)
+        if "normals" not in entry:
+            n = triangle_normals(entry["triangles"])
+            entry["normals"] = np.concatenate([n, np.zeros((1, 3), np.float32)])
+        return entry["normals"]
+
+    def _remember(self, version, time, triangles) -> None:
+        """Keeps ``triangles`` as the positions of ``version``/``time``."""
+        self._known.put(self._key(version, time), triangles)
 
     def update_geometry(self, triangles) -> int:
         """New positions for every triangle (``(T, 3, 3)`` or ``(T, 9)``, same ids): a new
         version, returned. Traces default to the latest version from then on."""
         body = formats.encode_triangles(triangles)
+        generation = self.info.get("created_at")  # seen before the version is made
+        # Never sent twice: a PUT that arrived made a version, and a second makes another.
         answer = self.client._json(
             "PUT", f"{self._path}/geometry", data=body, headers={"Content-Type": TRI_MEDIA}
         )
-        return self._made_version(int(answer["version"]), body)
+        return self._made_version(int(answer["version"]), body, generation)
 
-    def _made_version(self, version: int, tri1) -> int:
-        """Notes ``version``, made from the TRI1 bytes ``tri1``: the latest, and known."""
+    def _made_version(self, version: int, tri1, generation) -> int:
+        """Notes ``version``, made from the TRI1 bytes ``tri1`` in the scene of
+        ``generation`` (its ``created_at`` before the request): the latest, and known."""
         self.info["version"] = version
         known = formats.decode_triangles(tri1)
         known.flags.writeable = False
-        self._known[(version, None)] = known
+        self._known.put((generation, version, None), known)
         return version
 
     # -- tracing --------------------------------------------------------------------------
@@ -448,6 +585,8 @@ class Scene:
         resp, answer = self.client._binary(
             "POST", f"{self._path}/{route}", params=params, data=body,
             headers={"Content-Type": media},
+            # A trace changes nothing and may be sent again; a frame makes a version.
+            replay=route == "trace",
         )
         records = formats.decode_hits(answer, HIT_FORMATS[params["hit"]], n)
         version = resp.headers.get("X-Rayd-Version")
@@ -484,8 +623,9 @@ class Scene:
         params = self._trace_params(query, hit, accel, None, None, build, precision, invalid)
         tri = formats.encode_triangles(triangles)
         rays = formats.encode_rays(origins, directions, tmin, tmax)
+        generation = self.info.get("created_at")  # seen before the version is made
         hits = self._trace_body(tri + rays, (len(rays) - 16) // 32, params, "frame", FRAME_MEDIA)
-        self._made_version(hits.version, tri)
+        self._made_version(hits.version, tri, generation)
         return hits
 
     def trace_async(self, origins, directions, tmin=0.0, tmax=np.inf, *,
@@ -507,11 +647,13 @@ class Scene:
             headers["Idempotency-Key"] = idempotency_key
         info = self.client._json(
             "POST", f"{self._path}/trace", params=params, data=body, headers=headers,
+            replay=bool(idempotency_key),  # without a key, a second POST is a second job
         )
         return Job(self.client, info, expect=(HIT_FORMATS[params["hit"]],
                                               (len(body) - 16) // 32))
 
-    def cast_rays(self, rays, *, accel=None, version=None, time=None, precision=None) -> dict:
+    def cast_rays(self, rays, *, accel=None, version=None, time=None, precision=None,
+                  invalid: str | None = None, tmin=0.0, tmax=np.inf) -> dict:
         """Open3D's ``RaycastingScene.cast_rays`` against this scene.
 
         ``rays`` is ``(..., 6)``: origin and direction (any leading shape, float32 or
@@ -524,7 +666,14 @@ class Scene:
         ``(v1-v0) × (v2-v0)`` as Embree reports them, not turned to the ray; 0).
         Normals are computed here from the triangles of the version traced
         (:meth:`triangles`). ``accel``, ``version``, ``time`` and ``precision`` are
-        :meth:`trace`'s."""
+        :meth:`trace`'s.
+
+        Beyond Open3D's: ``invalid="miss"`` answers rays with a NaN or infinite coordinate
+        or a zero direction (a depth camera's holes) as misses instead of refusing the
+        batch (422; ``"error"``, the default), as :meth:`trace`'s ``invalid``; ``tmin`` and
+        ``tmax`` (scalars, or shaped like ``rays[..., 0]``) narrow the interval, so that
+        ``cast_rays(rays.as_open3d(), tmax=rays["tmax"])`` keeps the ``tmax`` given to
+        :func:`rayd.spawn_rays`, which Open3D's layout cannot hold."""
         if hasattr(rays, "numpy") and not isinstance(rays, np.ndarray):
             rays = rays.numpy()
         r = np.asarray(rays, dtype=np.float32)
@@ -532,10 +681,14 @@ class Scene:
             raise ValueError(f"rays must have shape (..., 6), not {r.shape}")
         lead = r.shape[:-1]
         flat = r.reshape(-1, 6)
+        lo, hi = (np.broadcast_to(np.asarray(x, np.float32), lead).reshape(-1)
+                  if np.ndim(x) else x for x in (tmin, tmax))
         if version is None:
             version = self.version  # pinned, so the normals are those of the version traced
-        hits = self.trace(flat[:, :3], flat[:, 3:], 0.0, np.inf, accel=accel,
-                          version=version, time=time, precision=precision)
+        hits = self.trace(flat[:, :3], flat[:, 3:], lo, hi, accel=accel,
+                          version=version, time=time, precision=precision, invalid=invalid)
+        # Asked after the trace, so that normals known from before it answer only when
+        # the summary shows the same scene (see triangles()).
         return open3d_answer(hits.records, self._normals(version, time), lead, version)
 
     # -- rendering ------------------------------------------------------------------------
@@ -548,7 +701,8 @@ class Scene:
         take the server's defaults. Returns the :class:`Job`."""
         body = {k: _plain(v) for k, v in options.items() if v is not None}
         headers = {"Idempotency-Key": idempotency_key} if idempotency_key else None
-        info = self.client._json("POST", f"{self._path}/render", json_body=body, headers=headers)
+        info = self.client._json("POST", f"{self._path}/render", json_body=body,
+                                 headers=headers, replay=bool(idempotency_key))
         return Job(self.client, info)
 
 
@@ -593,17 +747,27 @@ class Job:
         return self.info
 
     def _events(self, deadline):
-        """Job records from the SSE stream, each as it arrives, until the stream ends."""
+        """Job records from the SSE stream, each as it arrives, until the stream ends.
+
+        A stream that cannot be opened, breaks off (the server going away) or stays
+        silent until the deadline just ends: :meth:`wait` polls after it, and decides
+        there whether the deadline has passed."""
         read_timeout = None if deadline is None else max(deadline - _time.monotonic(), 0.1)
-        resp = self.client._request(
-            "GET", f"{self._path}/events", stream=True,
-            headers={"Accept": "text/event-stream"},
-            timeout=(self.client.timeout, read_timeout),
-        )
+        try:
+            resp = self.client._request(
+                "GET", f"{self._path}/events", stream=True,
+                headers={"Accept": "text/event-stream"},
+                timeout=(self.client.timeout, read_timeout),
+            )
+        except (requests.ConnectionError, requests.Timeout):
+            return
         try:
             buf = b""
             data = []
             event = "message"
+            # A read timeout inside iter_content comes as a ConnectionError (requests
+            # wraps urllib3's ReadTimeoutError), a connection cut mid-body as a
+            # ChunkedEncodingError: both end the stream.
             for chunk in resp.iter_content(chunk_size=None):
                 buf += chunk
                 *lines, buf = buf.split(b"\n")
@@ -624,15 +788,47 @@ class Job:
                         event = value
                 if deadline is not None and _time.monotonic() > deadline:
                     return
+        except (requests.ConnectionError, requests.Timeout,
+                requests.exceptions.ChunkedEncodingError):
+            return
         finally:
             resp.close()
+
+    def _poll(self, deadline):
+        """The job's record, asked for again and again (with a growing pause) while the
+        server cannot be reached, answers 503 or is slow: until the deadline, or without
+        one for the client's ``timeout`` seconds of failures in a row (a server restarting
+        takes a few seconds; one that is gone should not be waited for forever). None
+        once the deadline has passed."""
+        pause = 0.05
+        failing_since = None
+        while True:
+            now = _time.monotonic()
+            if deadline is not None and now > deadline:
+                return None
+            limit = self.client.timeout
+            if deadline is not None:
+                limit = max(min(limit, deadline - now), 0.1)
+            try:
+                return self.client._json("GET", self._path, timeout=limit)
+            except (requests.ConnectionError, requests.Timeout, ProblemError) as e:
+                if isinstance(e, ProblemError) and e.status != 503:
+                    raise
+                failing_since = now if failing_since is None else failing_since
+                if deadline is None and _time.monotonic() - failing_since > self.client.timeout:
+                    raise
+            wait = pause if deadline is None else min(pause, max(deadline - _time.monotonic(), 0))
+            _time.sleep(wait)
+            pause = min(pause * 2, 1.0)
 
     def wait(self, progress: bool = True, timeout: float | None = None, check: bool = True) -> Job:
         """Waits for the job to end, following its event stream; with ``progress`` a tqdm
         bar shows its progress. Returns the job itself (so ``job.wait().result()`` reads
         well), its final record in :attr:`info`; a job that failed or was cancelled raises
         :class:`rayd.JobError` unless ``check`` is False. ``timeout`` (seconds) raises
-        ``TimeoutError`` when the job has not ended by then."""
+        ``TimeoutError`` when the job has not ended by then. A server that goes away during
+        the wait (a restart) is asked again until the deadline, or without one for the
+        client's ``timeout`` seconds, so a wait outlives a restart."""
         deadline = None if timeout is None else _time.monotonic() + timeout
         bar = None
         if progress:
@@ -654,22 +850,22 @@ class Job:
                     show(info)
                     if info.get("state") in _FINAL:
                         break
-            # A stream that closed early (the server shutting down, a proxy's timeout):
-            # poll until the end or the deadline.
+            # A stream that closed early (the server shutting down or restarting, a
+            # proxy's timeout) or stayed silent: poll until the end or the deadline,
+            # through a server that is restarting.
             pause = 0.05
             while self.info.get("state") not in _FINAL:
                 if deadline is not None and _time.monotonic() > deadline:
                     raise TimeoutError(
                         f"job {self.id} is still {self.info.get('state')} after {timeout} s"
                     )
-                _time.sleep(pause)
+                _time.sleep(pause if deadline is None
+                            else min(pause, max(deadline - _time.monotonic(), 0)))
                 pause = min(pause * 2, 1.0)
-                show(self.client._json("GET", self._path))
+                info = self._poll(deadline)
+                if info is not None:
+                    show(info)
             show(self.info)
-        except requests.exceptions.ReadTimeout:
-            raise TimeoutError(
-                f"job {self.id} is still {self.info.get('state')} after {timeout} s"
-            ) from None
         finally:
             if bar is not None:
                 bar.close()

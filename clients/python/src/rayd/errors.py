@@ -55,6 +55,22 @@ class ProblemError(RaydError):
         where = f" ({method} {url})" if method else ""
         super().__init__(f"{status} {title}: {detail}{where}")
 
+    def __reduce__(self):
+        # Exception pickling rebuilds an error from ``self.args`` (the message alone), which
+        # this __init__ does not take: a ProblemError raised in a worker process
+        # (concurrent.futures, multiprocessing) could not come back. Rebuild it from its
+        # members instead, and restore whatever else was set on it (``__notes__``, ...).
+        kwargs = {
+            "type": self.type,
+            "instance": self.instance,
+            "extras": self.extras,
+            "method": self.method,
+            "url": self.url,
+            "retry_after": self.retry_after,
+        }
+        return (_rebuild, (type(self), (self.status, self.title, self.detail), kwargs),
+                dict(self.__dict__))
+
     def __getattr__(self, name):
         # Only reached for names that are not ordinary attributes: the extension members.
         extras = self.__dict__.get("extras", {})
@@ -116,3 +132,12 @@ class JobError(RaydError):
         state = job.get("state")
         why = job.get("error") or state
         super().__init__(f"job {job.get('id')} {state}: {why}")
+
+    def __reduce__(self):
+        # As ProblemError's: ``self.args`` holds the message, not the record __init__ takes.
+        return (type(self), (self.job,), dict(self.__dict__))
+
+
+def _rebuild(cls, args, kwargs):
+    """An error made again by its constructor (the target of ``__reduce__``)."""
+    return cls(*args, **kwargs)

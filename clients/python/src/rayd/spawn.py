@@ -122,8 +122,35 @@ class Rays(dict):
         self.valid = valid
 
     def as_open3d(self) -> np.ndarray:
-        """The rays as an ``(N, 6)`` float32 array (origins, directions), Open3D's layout."""
-        return np.concatenate([self["origins"], self["directions"]], axis=1)
+        """The rays as an ``(N, 6)`` float32 array (origins, directions), Open3D's layout.
+
+        That layout has no ``tmin``/``tmax``: every ray spans ``0 <= t < inf``. The rays
+        :func:`spawn_rays` gives for misses still miss so (they start outside the
+        triangles' bounds and leave them); a finite ``tmax`` is lost, so pass
+        ``tmax=rays["tmax"]`` to :meth:`rayd.Scene.cast_rays` to keep it."""
+        return np.concatenate([self["origins"], self["directions"]], axis=1).astype(
+            np.float32, copy=False
+        )
+
+
+def _outside(triangles, directions) -> np.ndarray:
+    """Origins from which ``directions`` (``(N, 3)``, non-zero) lead away from every
+    triangle: on the sphere around the triangles' bounds of twice their radius plus one,
+    on the side each direction points to, so the whole ray stays outside the bounding
+    sphere and hits nothing with any interval. (Rounding to float32 moves an origin by
+    far less than the margin of one radius plus one.)"""
+    t = np.asarray(triangles, dtype=np.float64).reshape(-1, 3)
+    if t.shape[0]:
+        lo, hi = t.min(axis=0), t.max(axis=0)
+        centre, radius = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
+    else:
+        centre, radius = np.zeros(3), 0.0
+    d = np.asarray(directions, dtype=np.float64)
+    unit = d / np.linalg.norm(d, axis=1, keepdims=True)
+    # Bounds near float32's largest value would overflow; clipped, such a ray is still a
+    # miss in trace(), by its empty interval.
+    big = float(np.finfo(np.float32).max)
+    return np.clip(centre + (2.0 * radius + 1.0) * unit, -big, big).astype(np.float32)
 
 
 def spawn_rays(hits, directions, triangles, *, tmax=np.inf) -> dict:
@@ -139,7 +166,9 @@ def spawn_rays(hits, directions, triangles, *, tmax=np.inf) -> dict:
     Returns :class:`Rays`, a dict ``{"origins", "directions", "tmin", "tmax"}`` ready for
     ``scene.trace(**rays)``. A ray whose hit was a miss has no origin: it gets an empty
     interval (``tmin = tmax = inf``), so it is answered as a miss, and ``rays.valid`` (one
-    bool a ray) is False for it.
+    bool a ray) is False for it. Its origin is put outside the triangles' bounds, on the
+    side its direction leaves by, so that it misses without its interval too, as the
+    rays of :meth:`Rays.as_open3d` (Open3D's layout, which has no interval) are traced.
     """
     prim, _, _ = _hit_fields(hits)
     n_rays = prim.size
@@ -152,10 +181,10 @@ def spawn_rays(hits, directions, triangles, *, tmax=np.inf) -> dict:
     side = np.einsum("ij,ij->i", normal, d)
     normal[side < 0] *= -1.0
     origins = offset_ray(hit_points(hits, triangles), normal)
-    origins[~valid] = 0.0
     # A miss's direction is never used, but it must still be a valid direction.
     unusable = ~valid & ~(np.isfinite(d).all(axis=1) & (d != 0).any(axis=1))
     d[unusable] = (0.0, 0.0, 1.0)
+    origins[~valid] = _outside(triangles, d[~valid])
     tmin = np.where(valid, np.float32(0.0), np.float32(np.inf)).astype(np.float32)
     hi = np.broadcast_to(np.asarray(tmax, dtype=np.float32), (n_rays,)).copy()
     hi[~valid] = np.inf
