@@ -450,6 +450,69 @@ fn bench_runs_and_agrees_with_its_reference() {
     }
     assert!(dump.join("quad-interior-diffuse8.ray").exists());
     assert!(dump.join("quad-interior-primary.hit").exists());
+    // The dumped hits name the traced triangles (the quad's, then the room's walls), which
+    // the dump holds as TRI1: tracing them again gives the same hits.
+    let traced = dump.join("quad-interior.tri");
+    let out = dir.path().join("again.hit");
+    let (ok, _, err) = rayd(&[
+        "trace",
+        p(&traced),
+        "--rays",
+        p(&dump.join("quad-interior-primary.ray")),
+        "--out",
+        p(&out),
+        "--accel",
+        "brute",
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        std::fs::read(&out).unwrap(),
+        std::fs::read(dump.join("quad-interior-primary.hit")).unwrap()
+    );
+}
+
+/// `bench --frames N` with the default `--accel auto` measures the strategies auto
+/// chooses among and scores its pick (it measured nothing and said nothing).
+#[test]
+fn bench_frames_with_auto_measures_autos_candidates() {
+    let (ok, j, err) = rayd(&[
+        "bench",
+        &sample("Fox.glb"),
+        "--frames",
+        "2",
+        "--sets",
+        "primary",
+        "--rays-per-frame",
+        "256",
+        "--threads",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    let sc = &j["scenes"][0];
+    let mut measured: Vec<String> = sc["series"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| {
+            format!(
+                "{} {}",
+                s["accel"].as_str().unwrap(),
+                s["mode"].as_str().unwrap()
+            )
+        })
+        .collect();
+    measured.sort();
+    assert_eq!(
+        measured,
+        [
+            "dacrt update",
+            "dacrt-sampled update",
+            "mbvh8 rebuild",
+            "mbvh8 refit"
+        ],
+        "{sc}"
+    );
+    assert_eq!(sc["auto"].as_array().unwrap().len(), 2, "{sc}");
 }
 
 /// The manifest's directory holds the committed sample scenes.
@@ -720,4 +783,34 @@ fn scene_files_are_read_no_further_than_they_declare() {
         !ok && err.contains("the file is 152 bytes, longer than the 52 bytes its TRI1 header"),
         "{err}"
     );
+}
+
+/// Outputs appear together or not at all: a sequence one of whose frames cannot be
+/// written writes none (checked before any is rendered), and a tradeoff whose options are
+/// refused makes no directory.
+#[test]
+fn refused_commands_leave_no_outputs() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("p-1.png")).unwrap();
+    let pattern = dir.path().join("p-#.png");
+    let (ok, _, err) = rayd(&[
+        "render",
+        &sample("Box.glb"),
+        "-o",
+        p(&pattern),
+        "--frames",
+        "0:2:1",
+        "--width",
+        "8",
+        "--height",
+        "8",
+    ]);
+    assert!(!ok && err.contains("is not a regular file"), "{err}");
+    assert!(!dir.path().join("p-0.png").exists());
+    let out = dir.path().join("tradeoff");
+    let (ok, _, err) = rayd(&["tradeoff", &sample("Box.glb"), "-o", p(&out), "--spp", "0"]);
+    assert!(!ok, "{err}");
+    assert!(!out.exists(), "{err}");
+    let (ok, _, err) = rayd(&["healthcheck", "--timeout", "1e20"]);
+    assert!(!ok && err.contains("--timeout"), "{err}");
 }

@@ -131,8 +131,11 @@ impl View {
         let c = bounds.center().map(f64::from);
         let room = room_around(&bounds);
         let half_room = [0, 1, 2].map(|k| 0.5 * (room.max[k] as f64 - room.min[k] as f64));
+        // The bench's default is the scene's camera 0 when a node places it; a camera the
+        // file lists but places nowhere is not one the scene has (the default view then).
+        let no_camera = !matches!(scene.cameras.first(), Some(Some(_)));
         let (camera, description) = match choice {
-            CameraChoice::Auto if scene.cameras.is_empty() && kind == ViewKind::Interior => {
+            CameraChoice::Auto if no_camera && kind == ViewKind::Interior => {
                 // Inside the room, outside the model's box (0.9 of the room's half depth is
                 // past the model's face), looking at the model's centre: the model fills
                 // most of the frame and the walls the rest.
@@ -150,13 +153,13 @@ impl View {
                     } => {
                         format!("eye {eye:?} target {target:?} fov {fov}")
                     }
-                    CameraChoice::Auto if scene.cameras.is_empty() => "default framing view".into(),
+                    CameraChoice::Auto if no_camera => "default framing view".into(),
                     CameraChoice::Auto => "scene camera 0".into(),
                 };
                 // The bench keeps its own default of the scene's camera 0 (a render's
                 // default view frames the bounds even when the scene has cameras).
                 let choice = match choice {
-                    CameraChoice::Auto if !scene.cameras.is_empty() => &CameraChoice::Scene(0),
+                    CameraChoice::Auto if !no_camera => &CameraChoice::Scene(0),
                     other => other,
                 };
                 (ViewCamera::choose(choice, scene, aspect)?, description)

@@ -339,8 +339,17 @@ impl Staged {
         Ok(())
     }
 
-    /// Renames every temporary file over its path, in order.
+    /// Renames every temporary file over its path, in order, after checking that no path
+    /// became something a rename cannot replace (a directory) since [`Staged::check`].
     fn commit(mut self) -> std::io::Result<()> {
+        for (_, path) in &self.files {
+            if std::fs::metadata(path).is_ok_and(|m| m.is_dir()) {
+                return Err(std::io::Error::other(format!(
+                    "{} is a directory",
+                    path.display()
+                )));
+            }
+        }
         let files = std::mem::take(&mut self.files);
         let mut left = files.iter();
         for (tmp, path) in left.by_ref() {

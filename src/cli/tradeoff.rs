@@ -82,6 +82,9 @@ pub(super) struct TradeoffArgs {
     time: Option<f64>,
 }
 
+/// The files a run writes into its directory.
+const OUTPUTS: [&str; 3] = ["tradeoff.csv", "tradeoff.md", "tradeoff.png"];
+
 /// Writes the three outputs into `dir` all or none ([`super::Staged`]), making `dir`
 /// only now, after every option was checked and every render made: a run that fails
 /// leaves no directory and no file behind.
@@ -153,6 +156,9 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
             a.out.display()
         )));
     }
+    for name in OUTPUTS {
+        super::Staged::check(&a.out.join(name))?;
+    }
     let path = a.scene.display().to_string();
     let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), Parts::Shading)?;
     let posed = match a.time {
@@ -196,9 +202,9 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
     let [csv, table, plot] = write_all(
         &a.out,
         [
-            ("tradeoff.csv", csv.as_bytes()),
-            ("tradeoff.md", table.as_bytes()),
-            ("tradeoff.png", &plot),
+            (OUTPUTS[0], csv.as_bytes()),
+            (OUTPUTS[1], table.as_bytes()),
+            (OUTPUTS[2], &plot),
         ],
     )?;
     Ok(json!({

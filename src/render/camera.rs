@@ -97,8 +97,19 @@ fn unit_from(v: [f64; 3], l: f64) -> Option<[f64; 3]> {
     (l > 0.0 && l.is_finite()).then(|| [v[0] / l, v[1] / l, v[2] / l])
 }
 
+/// `v` made unit length; `None` for a zero or non-finite `v`. A vector whose length
+/// overflows or underflows f64 (an `up` of `1e300, 1e300, 0` or `1e-300, 1e-300, 0`) is
+/// scaled by its largest component first; others take the plain path, whose rounding
+/// every rendered image depends on.
 fn unit(v: [f64; 3]) -> Option<[f64; 3]> {
-    unit_from(v, norm(v))
+    unit_from(v, norm(v)).or_else(|| {
+        let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        if !(m > 0.0 && m.is_finite()) {
+            return None;
+        }
+        let s = v.map(|x| x / m);
+        unit_from(s, norm(s))
+    })
 }
 
 impl ViewCamera {
@@ -116,6 +127,17 @@ impl ViewCamera {
         }
         if !eye.iter().chain(&target).chain(&up).all(|x| x.is_finite()) {
             return Err(CameraError::Degenerate("eye, target and up must be finite"));
+        }
+        // Camera rays are f32: an eye or target beyond its range would start them at
+        // infinity.
+        if !eye
+            .iter()
+            .chain(&target)
+            .all(|x| x.abs() <= f32::MAX as f64)
+        {
+            return Err(CameraError::Degenerate(
+                "eye and target must lie within f32's range (|x| <= 3.4e38), as rays do",
+            ));
         }
         let forward = unit(sub(target, eye)).ok_or(CameraError::Degenerate(EYE_AT_TARGET))?;
         let right = unit(cross(forward, up)).ok_or(CameraError::Degenerate(
@@ -494,6 +516,36 @@ pub const RAYS_AT_ONCE: usize = 8;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An `up` whose length overflows or underflows f64 is a direction all the same; an
+    /// eye beyond f32's range is refused for what it is, not as "eye equals target".
+    #[test]
+    fn extreme_but_valid_vectors_make_cameras_and_others_say_why_not() {
+        let along_z = |up: [f64; 3]| ViewCamera::look_at([0.0, 0.0, 5.0], [0.0; 3], up, 45.0, 1.0);
+        for up in [
+            [1e300, 1e300, 0.0],
+            [1e-300, 1e-300, 0.0],
+            [0.0, 1e-320, 0.0],
+        ] {
+            let cam = along_z(up).unwrap_or_else(|e| panic!("{up:?}: {e}"));
+            let u = cam.up;
+            assert!(
+                (norm(u) - 1.0).abs() < 1e-12 && u[2].abs() < 1e-12,
+                "{up:?}: {u:?}"
+            );
+        }
+        let ordinary = along_z([0.0, 1.0, 0.0]).unwrap();
+        assert_eq!(ordinary.up, [0.0, 1.0, 0.0]);
+        let far = ViewCamera::look_at([0.0, 0.0, 1e308], [0.0; 3], [0.0, 1.0, 0.0], 45.0, 1.0);
+        match far {
+            Err(CameraError::Degenerate(why)) => assert!(why.contains("f32's range"), "{why}"),
+            other => panic!("{:?}", other.map(|_| ())),
+        }
+        match along_z([0.0, 0.0, 1e300]) {
+            Err(CameraError::Degenerate(why)) => assert!(why.contains("parallel"), "{why}"),
+            other => panic!("{:?}", other.map(|_| ())),
+        }
+    }
 
     /// Two perspective cameras: an ordinary one, and a wide one far from the origin.
     fn perspective_cameras() -> [ViewCamera; 2] {
