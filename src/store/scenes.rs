@@ -273,11 +273,18 @@ impl Store {
 
     /// Hands the blobs of deleted versions to [`Store::collect_pruned`].
     fn doom_blobs(&self, pruned: &[VersionRecord]) {
-        if pruned.is_empty() {
+        self.doom(pruned.iter().map(|v| v.blob.as_str()));
+    }
+
+    /// Hands blobs whose records were deleted to [`Store::collect_pruned`], which deletes
+    /// those that no record names by then.
+    fn doom<'a>(&self, blobs: impl Iterator<Item = &'a str>) {
+        let mut doomed = self.pruned();
+        let before = doomed.len();
+        doomed.extend(blobs.filter_map(BlobId::parse));
+        if doomed.len() == before {
             return;
         }
-        let mut doomed = self.pruned();
-        doomed.extend(pruned.iter().filter_map(|v| BlobId::parse(&v.blob)));
         // Uncollected (no caller runs `collect_pruned`), the oldest are left to GC's grace.
         if doomed.len() > MAX_DOOMED {
             let over = doomed.len() - MAX_DOOMED;
@@ -348,6 +355,17 @@ impl Store {
         .iter()
         .map(|r| r.try_get(0))
         .collect::<Result<_, _>>()?;
+        // Its versions' files (the upload's among them) go at the next `collect_pruned`,
+        // within seconds, unless another record names the same bytes: left to GC's grace,
+        // a client that uploads and deletes scenes would fill `--max-store-bytes` with
+        // deleted ones for 15 minutes.
+        let blobs: Vec<String> = sqlx::query("SELECT blob FROM scene_versions WHERE scene_id = ?")
+            .bind(scene.as_str())
+            .fetch_all(&mut *tx)
+            .await?
+            .iter()
+            .map(|r| r.try_get(0))
+            .collect::<Result<_, _>>()?;
         let deleted = sqlx::query("DELETE FROM scenes WHERE id = ?")
             .bind(scene.as_str())
             .execute(&mut *tx)
@@ -357,6 +375,7 @@ impl Store {
             return Err(StoreError::not_found("scene", scene.as_str()));
         }
         tx.commit().await?;
+        self.doom(blobs.iter().map(String::as_str));
         Ok(unfinished)
     }
 }

@@ -304,6 +304,33 @@ async fn blobs_without_their_database_are_refused() {
     open(tmp.path()).await.close().await;
 }
 
+/// A deleted scene's files (its upload and versions) go at the next `collect_pruned`,
+/// not after GC's grace, so that a store bounded by `max_bytes` is not full of deleted
+/// scenes; bytes another scene also stored stay.
+#[tokio::test]
+async fn a_deleted_scenes_files_go_at_the_next_collection() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        gc_grace: Duration::from_secs(900),
+        ..StoreOptions::default()
+    };
+    let store = Store::open(tmp.path(), options).await.unwrap();
+    let s = scene(&store, b"doomed").await;
+    let moved = store.put_blob(vec![7u8; 36]).await.unwrap();
+    store.add_version(&s.id, &moved).await.unwrap();
+    let other = scene(&store, b"other").await;
+    store.add_version(&other.id, &moved).await.unwrap();
+    store.delete_scene(&s.id).await.unwrap();
+    let report = store.collect_pruned(true).await.unwrap();
+    assert_eq!((report.deleted, report.referenced), (1, 1));
+    assert!(matches!(
+        store.get_blob(&s.id).await,
+        Err(StoreError::NotFound { .. })
+    ));
+    assert_eq!(store.get_blob(moved.as_str()).await.unwrap(), vec![7u8; 36]);
+    store.close().await;
+}
+
 #[tokio::test]
 async fn migrations_are_recorded_and_run_once() {
     let tmp = tempfile::tempdir().unwrap();
