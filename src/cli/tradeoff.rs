@@ -99,16 +99,14 @@ fn write_all(dir: &std::path::Path, files: [(&str, &[u8]); 3]) -> Result<[String
     let mut written = Vec::new();
     for (name, bytes) in files {
         let path = dir.join(name);
-        let wrote = staged
-            .write(&path, bytes)
-            .and_then(|()| Ok(written.push(path.display().to_string())));
-        if let Err(e) = wrote {
+        if let Err(e) = staged.write(&path, bytes) {
             drop(staged);
             if made {
                 let _ = std::fs::remove_dir(dir);
             }
             return Err(io(&path)(e).into());
         }
+        written.push(path.display().to_string());
     }
     if let Err(e) = staged.commit() {
         return Err(io(dir)(e).into());
