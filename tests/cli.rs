@@ -814,3 +814,28 @@ fn refused_commands_leave_no_outputs() {
     let (ok, _, err) = rayd(&["healthcheck", "--timeout", "1e20"]);
     assert!(!ok && err.contains("--timeout"), "{err}");
 }
+
+/// A `.gltf`'s external buffer is read no further than its `byteLength`: a buffer file
+/// that is a device fed forever (`/dev/zero`) took all memory.
+#[cfg(unix)]
+#[test]
+fn an_external_buffer_is_read_no_further_than_its_byte_length() {
+    let dir = tempfile::tempdir().unwrap();
+    std::os::unix::fs::symlink("/dev/zero", dir.path().join("buf.bin")).unwrap();
+    let doc = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": "buf.bin", "byteLength": 36}],
+        "bufferViews": [{"buffer": 0, "byteLength": 36}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0.0, 0.0, 0.0], "max": [0.0, 0.0, 0.0]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "scene": 0
+    });
+    let scene = dir.path().join("zero.gltf");
+    std::fs::write(&scene, doc.to_string()).unwrap();
+    let (ok, j, err) = rayd(&["info", p(&scene)]);
+    assert!(ok, "{err}");
+    assert_eq!(j["triangles"], 1, "{j}");
+}

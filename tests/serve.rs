@@ -1512,3 +1512,41 @@ fn a_frame_updates_the_geometry_and_traces_it_in_one_request() {
     assert_eq!(v2.status, 200);
     assert_eq!(v2.body, std::fs::read(files.join("v2.hit")).unwrap());
 }
+
+/// A scene whose stored file was damaged in place (same size, one byte flipped) is
+/// mended by uploading its bytes again, before or after a read has found the damage:
+/// the re-upload hashes the stored copy rather than trusting its size.
+#[test]
+fn uploading_the_same_bytes_again_mends_a_damaged_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let bytes = std::fs::read(scenes().join("Box.glb")).unwrap();
+    let upload = |s: &Server| {
+        s.req(
+            "POST",
+            "/v1/scenes",
+            &[("Content-Type", "model/gltf-binary")],
+            &bytes,
+        )
+    };
+    let s = Server::start(&data, &[]);
+    let id = s.upload_sample("Box.glb")["id"]
+        .as_str()
+        .unwrap()
+        .to_owned();
+    s.stop();
+    let file = data.join("blobs").join(&id[..2]).join(&id);
+    let mut damaged = std::fs::read(&file).unwrap();
+    let mid = damaged.len() / 2;
+    damaged[mid] ^= 0xff;
+    std::fs::write(&file, &damaged).unwrap();
+    let s = Server::start(&data, &[]);
+    assert_eq!(upload(&s).status, 200);
+    assert_eq!(
+        std::fs::read(&file).unwrap(),
+        bytes,
+        "the copy was not written again"
+    );
+    let r = s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[]);
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+}

@@ -363,10 +363,15 @@ impl App {
             // they would be on a server that had never seen them: a stored GLB sent as
             // TRI1 does not load as TRI1.
             if existing.content_type == kind.media_type() {
-                // The stored copy is written again where it is missing or damaged (moved
-                // to quarantine by a read that found it corrupt, cut short): uploading the
-                // same bytes is how a damaged scene is mended (proto/store.md). A whole copy
-                // only has its time renewed.
+                // The stored copy is written again where it is missing or damaged:
+                // uploading the same bytes is how a damaged scene is mended
+                // (proto/store.md). It is hashed first, so that a copy damaged in place
+                // (same size, a flipped byte) is found and moved to quarantine, which a
+                // size check alone would take for whole; a whole copy only has its time
+                // renewed.
+                if let Err(e) = self.store().open_blob(&existing.id).await {
+                    tracing::warn!(scene = %existing.id, "stored copy unreadable, written again: {e}");
+                }
                 self.store().put_blob(bytes).await?;
                 // Uploading the bytes again is also how a failed thumbnail is tried again.
                 self.queue_thumbnail(&existing.id);

@@ -267,9 +267,11 @@ fn status_code(line: &str) -> Option<u16> {
 pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliError> {
     let usage = CliError::Usage;
     // A day bounds it: a probe that waits longer is not a health check.
-    if !(a.timeout.is_finite() && a.timeout > 0.0 && a.timeout <= MAX_PROBE_SECONDS) {
+    // A millisecond at least: the socket timeouts have that resolution (less is 0, which
+    // the OS refuses).
+    if !(a.timeout.is_finite() && a.timeout >= 0.001 && a.timeout <= MAX_PROBE_SECONDS) {
         return Err(usage(format!(
-            "--timeout {} is not a number of seconds in (0, {MAX_PROBE_SECONDS}]",
+            "--timeout {} is not a number of seconds in [0.001, {MAX_PROBE_SECONDS}]",
             a.timeout
         )));
     }

@@ -206,7 +206,7 @@ pub(super) fn resolve_buffers<'a>(
                             .map_err(|reason| GltfError::BadDataUri { buffer: i, reason })?,
                     )
                 } else {
-                    Cow::Owned(read_external(i, uri, base_dir)?)
+                    Cow::Owned(read_external(i, uri, base_dir, declared)?)
                 }
             }
         };
@@ -263,7 +263,17 @@ pub(super) enum UriError {
 /// must stay inside the directory: `..`, a root or a drive in it (also when spelled with
 /// `%2e%2e` or `%2f`) is refused without opening anything, so a file cannot make rayd read
 /// `/etc/passwd` or a neighbour's data.
-pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, UriError> {
+///
+/// At most `max` bytes are read: a buffer needs no more than its `byteLength` (the rest is
+/// never used), and an image no more than [`MAX_IMAGE_FILE_BYTES`]; a file that names a
+/// pipe or a device fed forever (`/dev/zero`) is not read until memory runs out. A file
+/// with more than `max` bytes is read to `max` and one byte more, so that the caller can
+/// tell it from one of exactly `max`.
+pub(super) fn read_relative(
+    uri: &str,
+    base_dir: Option<&Path>,
+    max: u64,
+) -> Result<Vec<u8>, UriError> {
     let has_scheme = uri
         .split_once(':')
         .is_some_and(|(scheme, _)| !scheme.is_empty() && !scheme.contains('/'));
@@ -280,11 +290,24 @@ pub(super) fn read_relative(uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8
         return Err(UriError::Escapes);
     }
     let path = base.join(decoded);
-    std::fs::read(&path).map_err(|e| UriError::Io {
+    let io = |e: std::io::Error| UriError::Io {
         path: path.display().to_string(),
         detail: e.to_string(),
-    })
+    };
+    let file = std::fs::File::open(&path).map_err(io)?;
+    let size = file
+        .metadata()
+        .ok()
+        .filter(|m| m.is_file())
+        .map(|m| m.len());
+    let want = max.saturating_add(1);
+    let mut bytes = Vec::with_capacity(size.unwrap_or(0).min(want) as usize);
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, want), &mut bytes).map_err(io)?;
+    Ok(bytes)
 }
+
+/// The most an image file beside a `.gltf` may hold: the service's default body limit.
+pub(super) const MAX_IMAGE_FILE_BYTES: u64 = 1 << 30;
 
 /// Whether the relative path `p` names something inside its base directory: only plain
 /// names and `.`, no `..`, root, drive or NUL, with `\\` counted as a separator too (a
@@ -299,8 +322,14 @@ fn stays_inside(p: &str) -> bool {
 }
 
 /// [`read_relative`] for buffer `buffer`, with the buffer errors.
-fn read_external(buffer: usize, uri: &str, base_dir: Option<&Path>) -> Result<Vec<u8>, GltfError> {
-    read_relative(uri, base_dir).map_err(|e| match e {
+fn read_external(
+    buffer: usize,
+    uri: &str,
+    base_dir: Option<&Path>,
+    declared: u64,
+) -> Result<Vec<u8>, GltfError> {
+    // Only the declared bytes are used (the rest is cut off below).
+    read_relative(uri, base_dir, declared.saturating_sub(1)).map_err(|e| match e {
         UriError::Unsupported => GltfError::UnsupportedUri {
             buffer,
             uri: uri.to_string(),
@@ -474,7 +503,10 @@ mod tests {
             "sub%2F..%2F..%2Fx",
         ] {
             assert!(
-                matches!(read_relative(uri, Some(&dir)), Err(UriError::Escapes)),
+                matches!(
+                    read_relative(uri, Some(&dir), 1 << 20),
+                    Err(UriError::Escapes)
+                ),
                 "{uri}"
             );
         }

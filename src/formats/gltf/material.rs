@@ -140,7 +140,8 @@ fn image(
                 }
                 container::decode_data_uri(rest).map_err(bad)?
             } else {
-                container::read_relative(uri, base_dir).map_err(|e| match e {
+                let max = container::MAX_IMAGE_FILE_BYTES;
+                let read = container::read_relative(uri, base_dir, max).map_err(|e| match e {
                     UriError::Unsupported => bad(format!(
                         "URI {uri:?} is not supported (only data: URIs and relative paths)"
                     )),
@@ -153,7 +154,13 @@ fn image(
                     UriError::Io { path, detail } => {
                         bad(format!("cannot read {path} (uri {uri:?}): {detail}"))
                     }
-                })?
+                })?;
+                if read.len() as u64 > max {
+                    return Err(bad(format!(
+                        "the file of URI {uri:?} holds more than {max} bytes, the most an image may"
+                    )));
+                }
+                read
             }
         }
         (None, None) => return Err(bad("has neither a bufferView nor a uri".to_string())),

@@ -757,7 +757,10 @@ class Job:
             resp = self.client._request(
                 "GET", f"{self._path}/events", stream=True,
                 headers={"Accept": "text/event-stream"},
-                timeout=(self.client.timeout, read_timeout),
+                # Connecting counts against the deadline too: a server whose listen queue
+                # is full hangs the connect, not the read.
+                timeout=(self.client.timeout if read_timeout is None
+                         else min(self.client.timeout, read_timeout), read_timeout),
             )
         except (requests.ConnectionError, requests.Timeout):
             return
