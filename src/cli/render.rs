@@ -151,9 +151,10 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         )
     };
     let pattern = a.out.display().to_string();
+    let sequence = a.frames.is_some();
     // Frame `k`'s file: the pattern's name for it in a sequence, else the pattern.
     let out_of = |k: usize| {
-        if a.frames.is_some() {
+        if sequence {
             frame_name(&pattern, k)
         } else {
             pattern.clone()
@@ -161,7 +162,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     };
     for k in 0..times.len() {
         super::refuse_overwriting(out_of(k).as_ref(), &[&a.scene])?;
-        if a.frames.is_some() {
+        if sequence {
             super::Staged::check(out_of(k).as_ref())?;
         }
     }
@@ -175,7 +176,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         &engine.detached(),
         &mut |k, bytes| {
             let out = out_of(k);
-            let wrote = if a.frames.is_some() {
+            let wrote = if sequence {
                 staged.write(out.as_ref(), &bytes)
             } else {
                 super::write_whole(out.as_ref(), &bytes)
@@ -211,7 +212,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         "trace_seconds": report.trace_seconds,
         "render_seconds": report.render_seconds,
     });
-    if a.frames.is_some() {
+    if sequence {
         out["outputs"] = json!(written);
         out["frames"] = serde_json::to_value(&report.frames).expect("serialises");
     }

@@ -266,9 +266,8 @@ fn status_code(line: &str) -> Option<u16> {
 /// GETs the URL; succeeds (exit 0) only on a 200.
 pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliError> {
     let usage = CliError::Usage;
-    // A day bounds it: a probe that waits longer is not a health check.
-    // A millisecond at least: the socket timeouts have that resolution (less is 0, which
-    // the OS refuses).
+    // A millisecond at least (the socket timeouts' resolution: less is 0, which the OS
+    // refuses) and a day at most (a probe that waits longer is not a health check).
     if !(a.timeout.is_finite() && a.timeout >= 0.001 && a.timeout <= MAX_PROBE_SECONDS) {
         return Err(usage(format!(
             "--timeout {} is not a number of seconds in [0.001, {MAX_PROBE_SECONDS}]",

@@ -95,23 +95,23 @@ fn write_all(dir: &std::path::Path, files: [(&str, &[u8]); 3]) -> Result<[String
     };
     let made = !dir.exists();
     std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let mut staged = super::Staged::default();
-    let mut written = Vec::new();
-    for (name, bytes) in files {
-        let path = dir.join(name);
-        if let Err(e) = staged.write(&path, bytes) {
-            drop(staged);
-            if made {
-                let _ = std::fs::remove_dir(dir);
-            }
-            return Err(io(&path)(e).into());
+    let written = (|| {
+        let mut staged = super::Staged::default();
+        let mut written = Vec::new();
+        for (name, bytes) in files {
+            let path = dir.join(name);
+            staged.write(&path, bytes).map_err(io(&path))?;
+            written.push(path.display().to_string());
         }
-        written.push(path.display().to_string());
+        staged.commit().map_err(io(dir))?;
+        Ok::<_, FormatError>(written.try_into().expect("three files"))
+    })();
+    // The staged files are gone (committed or removed): a directory made here and left
+    // empty goes too.
+    if written.is_err() && made {
+        let _ = std::fs::remove_dir(dir);
     }
-    if let Err(e) = staged.commit() {
-        return Err(io(dir)(e).into());
-    }
-    Ok(written.try_into().expect("three files"))
+    Ok(written?)
 }
 
 pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {

@@ -98,32 +98,23 @@ pub const MAX_STREAMED_SCENE_BYTES: u64 = 1 << 30;
 /// declares nothing: a regular file is read whole, a stream to
 /// [`MAX_STREAMED_SCENE_BYTES`]. Anything else is refused by its parser from its first bytes.
 pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
-    use std::io::Read;
     let io = |source: std::io::Error| FormatError::Io {
         path: path.display().to_string(),
         source,
     };
     let mut file = std::fs::File::open(path).map_err(io)?;
-    // A regular file's size; a stream's is unknown.
-    let size = file
-        .metadata()
-        .ok()
-        .filter(|m| m.is_file())
-        .map(|m| m.len());
-    let mut bytes = Vec::with_capacity(binary::HEADER_BYTES);
-    (&mut file)
-        .take(binary::HEADER_BYTES as u64)
-        .read_to_end(&mut bytes)
-        .map_err(io)?;
-    let (limit, declared) = match bound_of(&bytes) {
-        Bound::Declared(n, kind) => (n, Some((n, kind))),
+    let size = regular_len(&file);
+    let mut bytes = Vec::new();
+    read_up_to(&mut file, &mut bytes, binary::HEADER_BYTES as u64, size).map_err(io)?;
+    let (limit, kind) = match bound_of(&bytes) {
+        Bound::Declared(n, kind) => (n, Some(kind)),
         Bound::Json => (size.unwrap_or(MAX_STREAMED_SCENE_BYTES), None),
         // No scene starts so: the parser refuses it from these bytes alone.
         Bound::Refused => return Ok(bytes),
     };
     let too_long = |len: Option<u64>| {
-        let bound = match declared {
-            Some((n, kind)) => format!("the {n} bytes its {kind} header declares"),
+        let bound = match kind {
+            Some(kind) => format!("the {limit} bytes its {kind} header declares"),
             None => format!("{MAX_STREAMED_SCENE_BYTES} bytes, the most a streamed scene may be"),
         };
         let msg = match len {
@@ -135,15 +126,37 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>, FormatError> {
     if let Some(len) = size.filter(|&len| len > limit) {
         return Err(too_long(Some(len)));
     }
-    let expect = size.unwrap_or(0).min(limit) as usize;
-    bytes.reserve(expect.saturating_sub(bytes.len()));
-    file.take(limit.saturating_add(1).saturating_sub(bytes.len() as u64))
-        .read_to_end(&mut bytes)
-        .map_err(io)?;
+    read_up_to(&mut file, &mut bytes, limit.saturating_add(1), size).map_err(io)?;
     if bytes.len() as u64 > limit {
         return Err(too_long(size));
     }
     Ok(bytes)
+}
+
+/// A regular file's length; `None` for a pipe or a device, whose length is unknown.
+pub(crate) fn regular_len(file: &std::fs::File) -> Option<u64> {
+    file.metadata()
+        .ok()
+        .filter(|m| m.is_file())
+        .map(|m| m.len())
+}
+
+/// Appends to `bytes` what `reader` holds from where it is, until `bytes` holds `limit`
+/// bytes: a pipe or a device fed forever (`/dev/zero`) is read no further. Room for what
+/// a regular file of `size` bytes holds (up to `limit`) is reserved first.
+pub(crate) fn read_up_to(
+    reader: impl std::io::Read,
+    bytes: &mut Vec<u8>,
+    limit: u64,
+    size: Option<u64>,
+) -> std::io::Result<()> {
+    use std::io::Read;
+    let have = bytes.len() as u64;
+    bytes.reserve(size.unwrap_or(0).min(limit).saturating_sub(have) as usize);
+    reader
+        .take(limit.saturating_sub(have))
+        .read_to_end(bytes)
+        .map(|_| ())
 }
 
 /// How much of a scene file its first bytes allow to be read.

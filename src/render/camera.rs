@@ -88,8 +88,12 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
 fn norm(v: [f64; 3]) -> f64 {
-    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+    dot(v, v).sqrt()
 }
 
 /// `v` divided by its length `l` (from [`norm`]), where that is a positive number.
@@ -403,13 +407,14 @@ impl ViewCamera {
                 for i in 0..N {
                     l[i] = norm(p[i]);
                 }
+                let clipped = self.clip != NO_CLIP;
                 for i in 0..N {
                     let d = unit_from(p[i], l[i]).unwrap_or(self.forward);
                     out[i] = ray(self.eye, d);
                     // The planes are at distances along the view axis: along this ray they
                     // are farther by 1 / cos of its angle to the axis.
-                    if self.clip != NO_CLIP {
-                        let cos = dot3(d, self.forward);
+                    if clipped {
+                        let cos = dot(d, self.forward);
                         out[i].tmin = (self.clip[0] / cos) as f32;
                         out[i].tmax = (self.clip[1] / cos) as f32;
                     }
@@ -429,10 +434,6 @@ impl ViewCamera {
 
 /// The clipping of a camera without planes: all of each ray.
 const NO_CLIP: [f64; 2] = [0.0, f64::INFINITY];
-
-fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 /// A camera ray from `org` along `dir`, rounded once to f32.
 #[inline(always)]
@@ -778,13 +779,8 @@ mod tests {
         let axis = cam.ray(f64::from(w) / 2.0, f64::from(h) / 2.0, w, h).dir;
         let edge_x = cam.ray(0.0, f64::from(h) / 2.0, w, h).dir;
         let edge_y = cam.ray(f64::from(w) / 2.0, 0.0, w, h).dir;
-        let angle = |a: [f32; 3], b: [f64; 3]| {
-            let a = a.map(f64::from);
-            let l = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-            ((a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / l)
-                .clamp(-1.0, 1.0)
-                .acos()
-        };
+        let angle =
+            |a: [f32; 3], b: [f64; 3]| (dot(a.map(f64::from), b) / norm(b)).clamp(-1.0, 1.0).acos();
         let e = cam.eye();
         let to_p = [p[0] - e[0], p[1] - e[1], p[2] - e[2]];
         let half = |d: [f32; 3]| angle(axis, d.map(f64::from));

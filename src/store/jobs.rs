@@ -151,7 +151,7 @@ impl Store {
         let job = with_frames(&mut conn, &row).await?;
         // Past its `expires_at` a job is gone, whether or not the next cleanup pass has
         // deleted its rows yet (it runs once a minute, and first a minute after a start).
-        if expired(&job, super::records::now_millis()) {
+        if expired(&job, now_millis()) {
             return Err(StoreError::not_found("job", id));
         }
         Ok(job)
@@ -208,7 +208,7 @@ impl Store {
         } else {
             None
         };
-        let now = super::records::now_millis();
+        let now = now_millis();
         jobs.retain(|j| !expired(j, now));
         Ok((jobs, next))
     }

@@ -285,22 +285,18 @@ async fn backup_into(
     staged_name.push(name);
     staged_name.push(format!(".rayd-backup-{}.tmp", std::process::id()));
     let staging = parent.join(staged_name);
-    let clear = |staging: PathBuf| async move {
-        blocking(dir, move || match std::fs::remove_dir_all(&staging) {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-            Err(e) => Err(StoreError::io(&staging, e)),
-        })
-        .await
+    let clear = |staging: &Path| {
+        let staging = staging.to_path_buf();
+        blocking(dir, move || remove_dir_if_any(&staging))
     };
     let mut attempt = 0;
     let report = loop {
         attempt += 1;
-        clear(staging.clone()).await?;
+        clear(&staging).await?;
         match backup_once(conn, blobs_root, dir, &staging).await {
             Err(StoreError::NotFound { what: "blob", .. }) if attempt < BACKUP_ATTEMPTS => {}
             Err(e) => {
-                let _ = clear(staging.clone()).await;
+                let _ = clear(&staging).await;
                 return Err(e);
             }
             Ok(report) => break report,
@@ -316,9 +312,17 @@ async fn backup_into(
     })
     .await;
     if placed.is_err() {
-        let _ = clear(staging).await;
+        let _ = clear(&staging).await;
     }
     placed.map(|()| report)
+}
+
+/// Removes `dir` and all it holds, if it is there.
+fn remove_dir_if_any(dir: &Path) -> Result<()> {
+    match std::fs::remove_dir_all(dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(StoreError::io(dir, e)),
+        _ => Ok(()),
+    }
 }
 
 /// One attempt of [`backup_into`], into the new directory `dest`.
@@ -427,33 +431,30 @@ fn delete_blob_files(blobs: &BlobDir, ids: Vec<BlobId>, report: &mut GcReport) -
 
 /// In a backup's copied database, deletes the versions whose blobs were gone when the
 /// copy came to them (`missing`): allowed only when every record naming such a blob is a
-/// version from 2 on that no job names, which is what `keep_versions` deletes in a
-/// running server; anything else missing is `NotFound`, as before. Returns how many
-/// versions went.
+/// version from 2 on, not its scene's newest, that no job names, which is what
+/// `keep_versions` deletes in a running server; anything else missing is `NotFound`.
+/// Returns how many versions went.
 async fn drop_pruned_versions(db: &Path, missing: &[BlobId]) -> Result<u64> {
     let mut conn =
         SqliteConnection::connect_with(&SqliteConnectOptions::new().filename(db)).await?;
     let mut dropped = 0;
     for id in missing {
-        let other: bool = sqlx::query_scalar(
+        // Named by anything but a version `keep_versions` may delete, or by a scene's
+        // newest version (the copy would report a version it does not hold, so the backup
+        // starts again from a newer snapshot).
+        let needed: bool = sqlx::query_scalar(
             "SELECT EXISTS (SELECT 1 FROM scene_versions WHERE blob = ?1 AND (version = 1 \
              OR EXISTS (SELECT 1 FROM jobs WHERE jobs.scene_id = scene_versions.scene_id \
              AND jobs.version = scene_versions.version))) \
+             OR EXISTS (SELECT 1 FROM scene_versions v JOIN scenes s \
+             ON s.id = v.scene_id AND s.latest_version = v.version WHERE v.blob = ?1) \
              OR EXISTS (SELECT 1 FROM jobs WHERE result_blob = ?1 OR input_blob = ?1) \
              OR EXISTS (SELECT 1 FROM job_results WHERE blob = ?1)",
         )
         .bind(id.as_str())
         .fetch_one(&mut conn)
         .await?;
-        // A scene's newest version gone as well: the copy would name a version it does
-        // not hold, so the backup starts again from a newer snapshot.
-        let latest: bool = sqlx::query_scalar(
-            "SELECT EXISTS (SELECT 1 FROM scene_versions v JOIN scenes s              ON s.id = v.scene_id AND s.latest_version = v.version WHERE v.blob = ?1)",
-        )
-        .bind(id.as_str())
-        .fetch_one(&mut conn)
-        .await?;
-        if other || latest {
+        if needed {
             return Err(StoreError::not_found("blob", id.as_str()));
         }
         dropped += sqlx::query("DELETE FROM scene_versions WHERE blob = ?")

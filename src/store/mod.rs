@@ -140,8 +140,8 @@ struct Inner {
     pruned: std::sync::Mutex<Vec<BlobId>>,
     /// Woken when `pruned` gains blobs.
     pruned_ready: tokio::sync::Notify,
-    /// The flock on `DIR/lock`; released when the last clone drops (or the process dies).
-    /// The lock file and the data directory, locked while the store is open.
+    /// The flocks on `DIR/lock` and on `DIR` itself ([`take_lock`]); released when the last
+    /// clone drops (or the process dies).
     _lock: (File, Option<File>),
 }
 
@@ -434,7 +434,8 @@ where
         })?
 }
 
-/// Creates the data directory if needed and takes the exclusive flock on `DIR/lock`.
+/// Creates the data directory if needed and takes the exclusive flocks on `DIR` (where the
+/// file system can lock a directory) and on `DIR/lock`.
 fn take_lock(dir: &Path) -> Result<(File, Option<File>)> {
     blob::create_dir_durable(dir)?;
     // The directory itself is locked as well: a lock file can be unlinked while held (a

@@ -340,32 +340,27 @@ impl Store {
 
     /// Deletes a scene with its versions and all its jobs (their results included), in one
     /// transaction. Returns the ids of the deleted jobs that were still queued or running,
-    /// so the engine can stop them (their later updates find no job). The blobs go at the
-    /// next [`Store::gc`].
+    /// so the engine can stop them (their later updates find no job). The versions' blobs
+    /// go at the next [`Store::collect_pruned`], the jobs' at the next [`Store::gc`].
     pub async fn delete_scene(&self, id: &str) -> Result<Vec<String>> {
         let scene = BlobId::parse_or_not_found(id, "scene")?;
         let mut tx = self.inner.writer.begin().await?;
-        let unfinished: Vec<String> = sqlx::query(
+        let unfinished: Vec<String> = sqlx::query_scalar(
             "SELECT id FROM jobs WHERE scene_id = ? AND state IN ('queued', 'running') \
              ORDER BY created_at, id",
         )
         .bind(scene.as_str())
         .fetch_all(&mut *tx)
-        .await?
-        .iter()
-        .map(|r| r.try_get(0))
-        .collect::<Result<_, _>>()?;
+        .await?;
         // Its versions' files (the upload's among them) go at the next `collect_pruned`,
         // within seconds, unless another record names the same bytes: left to GC's grace,
         // a client that uploads and deletes scenes would fill `--max-store-bytes` with
         // deleted ones for 15 minutes.
-        let blobs: Vec<String> = sqlx::query("SELECT blob FROM scene_versions WHERE scene_id = ?")
-            .bind(scene.as_str())
-            .fetch_all(&mut *tx)
-            .await?
-            .iter()
-            .map(|r| r.try_get(0))
-            .collect::<Result<_, _>>()?;
+        let blobs: Vec<String> =
+            sqlx::query_scalar("SELECT blob FROM scene_versions WHERE scene_id = ?")
+                .bind(scene.as_str())
+                .fetch_all(&mut *tx)
+                .await?;
         let deleted = sqlx::query("DELETE FROM scenes WHERE id = ?")
             .bind(scene.as_str())
             .execute(&mut *tx)

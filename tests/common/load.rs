@@ -690,7 +690,8 @@ impl Ctx<'_> {
         f(self.stats.lock().unwrap().entry(kind).or_default());
     }
 
-    /// One request, classified: a documented 503 or a restart gives `Again` (counted).
+    /// One request, classified: a documented 503 gives `Again`, a restart `Cut` (each
+    /// counted).
     fn send(
         &self,
         kind: Kind,

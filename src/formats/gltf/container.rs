@@ -264,15 +264,14 @@ pub(super) enum UriError {
 /// `%2e%2e` or `%2f`) is refused without opening anything, so a file cannot make rayd read
 /// `/etc/passwd` or a neighbour's data.
 ///
-/// At most `max` bytes are read: a buffer needs no more than its `byteLength` (the rest is
-/// never used), and an image no more than [`MAX_IMAGE_FILE_BYTES`]; a file that names a
-/// pipe or a device fed forever (`/dev/zero`) is not read until memory runs out. A file
-/// with more than `max` bytes is read to `max` and one byte more, so that the caller can
-/// tell it from one of exactly `max`.
+/// At most `limit` bytes are read ([`crate::formats::read_up_to`]): a buffer needs no more
+/// than its `byteLength` (the rest is never used), and an image no more than
+/// [`MAX_IMAGE_FILE_BYTES`]; a file that names a pipe or a device fed forever
+/// (`/dev/zero`) is not read until memory runs out.
 pub(super) fn read_relative(
     uri: &str,
     base_dir: Option<&Path>,
-    max: u64,
+    limit: u64,
 ) -> Result<Vec<u8>, UriError> {
     let has_scheme = uri
         .split_once(':')
@@ -295,14 +294,9 @@ pub(super) fn read_relative(
         detail: e.to_string(),
     };
     let file = std::fs::File::open(&path).map_err(io)?;
-    let size = file
-        .metadata()
-        .ok()
-        .filter(|m| m.is_file())
-        .map(|m| m.len());
-    let want = max.saturating_add(1);
-    let mut bytes = Vec::with_capacity(size.unwrap_or(0).min(want) as usize);
-    std::io::Read::read_to_end(&mut std::io::Read::take(file, want), &mut bytes).map_err(io)?;
+    let size = crate::formats::regular_len(&file);
+    let mut bytes = Vec::new();
+    crate::formats::read_up_to(file, &mut bytes, limit, size).map_err(io)?;
     Ok(bytes)
 }
 
@@ -329,7 +323,7 @@ fn read_external(
     declared: u64,
 ) -> Result<Vec<u8>, GltfError> {
     // Only the declared bytes are used (the rest is cut off below).
-    read_relative(uri, base_dir, declared.saturating_sub(1)).map_err(|e| match e {
+    read_relative(uri, base_dir, declared).map_err(|e| match e {
         UriError::Unsupported => GltfError::UnsupportedUri {
             buffer,
             uri: uri.to_string(),

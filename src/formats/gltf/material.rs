@@ -141,20 +141,22 @@ fn image(
                 container::decode_data_uri(rest).map_err(bad)?
             } else {
                 let max = container::MAX_IMAGE_FILE_BYTES;
-                let read = container::read_relative(uri, base_dir, max).map_err(|e| match e {
-                    UriError::Unsupported => bad(format!(
-                        "URI {uri:?} is not supported (only data: URIs and relative paths)"
-                    )),
-                    UriError::Escapes => bad(format!(
+                // A byte past the most, to tell a longer file from one of exactly that.
+                let read =
+                    container::read_relative(uri, base_dir, max + 1).map_err(|e| match e {
+                        UriError::Unsupported => bad(format!(
+                            "URI {uri:?} is not supported (only data: URIs and relative paths)"
+                        )),
+                        UriError::Escapes => bad(format!(
                         "URI {uri:?} leaves the file's directory (`..`, a root or a drive): refused"
                     )),
-                    UriError::NotAllowed => bad(format!(
+                        UriError::NotAllowed => bad(format!(
                         "refers to external file {uri:?}, but only embedded images are allowed here"
                     )),
-                    UriError::Io { path, detail } => {
-                        bad(format!("cannot read {path} (uri {uri:?}): {detail}"))
-                    }
-                })?;
+                        UriError::Io { path, detail } => {
+                            bad(format!("cannot read {path} (uri {uri:?}): {detail}"))
+                        }
+                    })?;
                 if read.len() as u64 > max {
                     return Err(bad(format!(
                         "the file of URI {uri:?} holds more than {max} bytes, the most an image may"
