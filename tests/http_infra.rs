@@ -330,6 +330,20 @@ async fn tokens_guard_v1_and_reload() {
 async fn metrics_use_route_templates() {
     let s = state(&[]);
     let app = app(&s);
+    // Before anything happened, every documented labelled series reads 0 (a dashboard
+    // would see no data otherwise).
+    let fresh = body_text(send(&app, get("/metrics")).await).await;
+    for line in [
+        r#"rayd_job_duration_seconds_count{kind="trace"} 0"#,
+        r#"rayd_job_duration_seconds_count{kind="render"} 0"#,
+        r#"rayd_requests_refused_total{reason="body_budget"} 0"#,
+        r#"rayd_requests_refused_total{reason="client_limit"} 0"#,
+        r#"rayd_requests_refused_total{reason="queue_full"} 0"#,
+        r#"rayd_requests_refused_total{reason="shutting_down"} 0"#,
+        r#"rayd_requests_refused_total{reason="starting"} 0"#,
+    ] {
+        assert!(fresh.contains(line), "{line}: {fresh}");
+    }
     send(&app, get("/v1/things/3f2a9c0d1e")).await;
     send(&app, get("/v1/things/77aa")).await;
     send(&app, get("/no/such/route/123")).await;
@@ -439,7 +453,7 @@ async fn metrics_pass_promtool() {
 #[tokio::test]
 async fn readiness_follows_the_phase() {
     let s = state(&[]);
-    let app = service::router(s.clone(), Routes::new());
+    let app = service::router(s.clone(), test_routes());
     let res = send(&app, get("/readyz")).await;
     assert!(res.headers().contains_key(header::RETRY_AFTER));
     assert!(problem(res, 503).await.detail.contains("starting"));
@@ -448,8 +462,13 @@ async fn readiness_follows_the_phase() {
         200,
         "alive while starting"
     );
+    // The API takes no work until the start is over (the last run's jobs re-queued).
+    let res = send(&app, get("/v1/things/1")).await;
+    assert!(res.headers().contains_key(header::RETRY_AFTER));
+    assert!(problem(res, 503).await.detail.contains("starting"));
     s.ready.set_ready();
     assert_eq!(send(&app, get("/readyz")).await.status(), 200);
+    assert_eq!(send(&app, get("/v1/things/1")).await.status(), 200);
     s.ready.set_draining();
     s.ready.set_ready();
     let res = send(&app, get("/readyz")).await;

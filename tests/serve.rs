@@ -919,11 +919,39 @@ fn deleting_a_scene_stops_its_jobs() {
     let running = s.submit_render(&id, long);
     let queued = s.submit_render(&id, long);
     wait_running(&s, &running, 30);
-    assert_eq!(
-        s.req("DELETE", &format!("/v1/scenes/{id}"), &[], &[])
-            .status,
-        204
-    );
+    // Their event streams end on a final state too, saying why (they closed on `running`
+    // and `queued`, which a client cannot tell from a dropped connection).
+    let last_events = std::thread::scope(|scope| {
+        let streams: Vec<_> = [&running, &queued]
+            .map(|job| {
+                let s = &s;
+                scope.spawn(move || {
+                    let r = s.req("GET", &format!("/v1/jobs/{job}/events"), &[], &[]);
+                    let last = String::from_utf8_lossy(&r.body)
+                        .lines()
+                        .filter_map(|l| l.strip_prefix("data:"))
+                        .last()
+                        .map(|d| serde_json::from_str::<serde_json::Value>(d.trim()).unwrap());
+                    last.expect("at least one event")
+                })
+            })
+            .into_iter()
+            .collect();
+        std::thread::sleep(Duration::from_millis(300));
+        assert_eq!(
+            s.req("DELETE", &format!("/v1/scenes/{id}"), &[], &[])
+                .status,
+            204
+        );
+        streams
+            .into_iter()
+            .map(|t| t.join().unwrap())
+            .collect::<Vec<_>>()
+    });
+    for last in last_events {
+        assert_eq!(last["state"], "cancelled", "{last}");
+        assert_eq!(last["error"], "its scene was deleted", "{last}");
+    }
     for job in [&running, &queued] {
         assert_eq!(
             s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).status,
@@ -1180,6 +1208,187 @@ fn async_traces_answer_as_sync_ones_and_refuse_bad_bodies_up_front() {
         .unwrap()
         .len();
     assert_eq!(jobs_before + 1, jobs_after, "a refused body made a job");
+}
+
+/// Stops a test's background loops when dropped, also while an assertion unwinds: a scoped
+/// thread looping on is joined before the panic goes on, and would hang the test.
+struct StopOnDrop<'a>(&'a std::sync::atomic::AtomicBool);
+
+impl Drop for StopOnDrop<'_> {
+    fn drop(&mut self) {
+        self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+    }
+}
+
+/// Copies of one keyed render sent at once, while geometry updates arrive and the queue
+/// has one place left, all get the one job the first made: each copy used to look for the
+/// key's job before any had made it, then take a queue place of its own (503) or fill in
+/// a version made meanwhile (409, "a different request").
+#[test]
+fn copies_of_a_keyed_request_sent_at_once_get_one_job() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(
+        &dir.path().join("data"),
+        &[
+            "--max-running",
+            "1",
+            "--max-queued",
+            "2",
+            "--keep-versions",
+            "1",
+            "--max-client-requests",
+            "64",
+        ],
+    );
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let long = br#"{"width": 512, "height": 512, "spp": 1024, "bounces": 4, "integrator": "path"}"#;
+    let running = s.submit_render(&id, long);
+    wait_running(&s, &running, 30);
+    s.submit_render(&id, long);
+    let positions = s
+        .req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[])
+        .body;
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let _stop = StopOnDrop(&stop);
+        let updates = scope.spawn(|| {
+            while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                let r = s.req(
+                    "PUT",
+                    &format!("/v1/scenes/{id}/geometry"),
+                    &[("Content-Type", "application/x-rayd-tri")],
+                    &positions,
+                );
+                assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+            }
+        });
+        for round in 0..4 {
+            let key = format!("at-once-{round}");
+            let body = format!(r#"{{"width": 8, "height": 8, "seed": {round}}}"#);
+            let answers: Vec<(u16, String)> = std::thread::scope(|inner| {
+                (0..12)
+                    .map(|_| {
+                        let (s, key, body, id) = (&s, &key, &body, &id);
+                        inner.spawn(move || {
+                            let r = s.req(
+                                "POST",
+                                &format!("/v1/scenes/{id}/render"),
+                                &[
+                                    ("Content-Type", "application/json"),
+                                    ("Idempotency-Key", key),
+                                ],
+                                body.as_bytes(),
+                            );
+                            (r.status, String::from_utf8_lossy(&r.body).into_owned())
+                        })
+                    })
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .map(|t| t.join().unwrap())
+                    .collect()
+            });
+            let ids: std::collections::HashSet<String> = answers
+                .iter()
+                .map(|(status, body)| {
+                    assert_eq!(*status, 202, "round {round}: {body}");
+                    let job: serde_json::Value = serde_json::from_str(body).unwrap();
+                    job["id"].as_str().unwrap().to_string()
+                })
+                .collect();
+            assert_eq!(ids.len(), 1, "round {round}: {ids:?}");
+            // The job took the queue's last place: cancelled, it frees it again.
+            let job = ids.into_iter().next().unwrap();
+            assert_eq!(
+                s.req("DELETE", &format!("/v1/jobs/{job}"), &[], &[]).status,
+                200
+            );
+            let t1 = Instant::now();
+            while Metrics::scrape(&s).get("rayd_jobs_queued") > 1.0 {
+                assert!(
+                    t1.elapsed().as_secs() < 10,
+                    "the cancelled job kept its place"
+                );
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        updates.join().unwrap();
+    });
+}
+
+/// A request that names no version takes whatever is latest, even while newer versions
+/// delete it as it is read (`--keep-versions 1`, versions sent without pause): a reviewer's
+/// renders of the latest answered 404 for a version they never named, half of them.
+#[test]
+fn requests_for_the_latest_version_never_miss_it_while_versions_arrive() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--keep-versions", "1"]);
+    let fox = s.upload_sample("Fox.glb");
+    let id = fox["id"].as_str().unwrap().to_string();
+    let base = rayd::formats::binary::read_tri(
+        &s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[])
+            .body,
+    )
+    .unwrap();
+    let rays = write_rays(&rays_at([-50.0, 0.0, -50.0], [50.0, 100.0, 50.0], 100));
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    let put = |k: usize| {
+        let mut n = 0u32;
+        while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            n += 1;
+            let mut tris = base.clone();
+            for t in &mut tris {
+                for v in &mut t.v {
+                    v[1] += (k * 100_000 + n as usize) as f32 * 1e-3;
+                }
+            }
+            let r = s.req(
+                "PUT",
+                &format!("/v1/scenes/{id}/geometry"),
+                &[("Content-Type", "application/x-rayd-tri")],
+                &write_tri(&tris),
+            );
+            assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        }
+    };
+    std::thread::scope(|scope| {
+        let _stop = StopOnDrop(&stop);
+        let updates: Vec<_> = (0..2).map(|k| scope.spawn(move || put(k))).collect();
+        let t0 = std::time::Instant::now();
+        let (mut renders, mut traces) = (0, 0);
+        while t0.elapsed() < Duration::from_secs(4) {
+            let r = s.post_render(&id, br#"{"width": 4, "height": 4}"#);
+            assert!(
+                matches!(r.status, 202 | 503),
+                "render: {} {}",
+                r.status,
+                String::from_utf8_lossy(&r.body)
+            );
+            renders += 1;
+            let r = s.req(
+                "POST",
+                &format!("/v1/scenes/{id}/trace"),
+                &[("Content-Type", "application/octet-stream")],
+                &rays,
+            );
+            assert!(
+                matches!(r.status, 200 | 503),
+                "trace: {} {}",
+                r.status,
+                String::from_utf8_lossy(&r.body)
+            );
+            traces += 1;
+        }
+        stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for u in updates {
+            u.join().unwrap();
+        }
+        assert!(
+            renders > 10 && traces > 10,
+            "{renders} renders, {traces} traces"
+        );
+    });
 }
 
 /// With `--keep-versions 2` a scene keeps version 1, its two newest versions and the

@@ -25,10 +25,6 @@ use crate::store::{
     BlobId, CallbackState, JobKind, JobOutcome, JobRecord, JobState, NewJob, StoreError,
 };
 
-/// How many times a job that named no version takes the latest again after the one it took
-/// was deleted by newer versions before its record was made (`--keep-versions`).
-const LATEST_TRIES: u32 = 3;
-
 /// A job as the API shows it (contract §5).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct JobView {
@@ -232,7 +228,11 @@ impl App {
         let mut spec = spec;
         // A retry finds its job before it needs a place in the queue (a full queue does not
         // refuse it), and before the latest version is filled in (a version made since the
-        // first try does not make it another request).
+        // first try does not make it another request). Copies sent at once take turns.
+        let _key = match &idempotency_key {
+            Some(k) => Some(self.inner.keys.lock(k).await),
+            None => None,
+        };
         if let Some(job) = self
             .retried(&idempotency_key, JobKind::Render, scene, |version| {
                 let mut first = spec.clone();
@@ -247,32 +247,30 @@ impl App {
         }
         let priority = spec.priority;
         let ticket = self.engine().scheduler().admit(priority as u16, false)?;
-        let mut version = geometry.key.version;
-        let mut tries = 0;
-        let (record, created) = loop {
-            spec.version = Some(version);
-            let new = NewJob {
-                kind: JobKind::Render,
-                scene_id: scene.to_string(),
-                version: i64::from(version),
-                request: serde_json::to_string(&spec).expect("a spec serialises"),
-                priority,
-                idempotency_key: idempotency_key.clone(),
-                input_blob: None,
-            };
-            match self.store().create_job(new).await {
-                // The latest version, taken for a request that named none, was deleted
-                // by newer ones meanwhile (`--keep-versions`): take the latest again.
-                Err(StoreError::NotFound {
-                    what: "version", ..
-                }) if asked.is_none() && tries < LATEST_TRIES => {
-                    tries += 1;
-                    version = self.geometry(scene, None, spec.time).await?.0.key.version;
-                    frames_on(version)?;
-                }
-                r => break r?,
-            }
+        spec.version = Some(geometry.key.version);
+        let new = NewJob {
+            kind: JobKind::Render,
+            scene_id: scene.to_string(),
+            version: i64::from(geometry.key.version),
+            request: serde_json::to_string(&spec).expect("a spec serialises"),
+            priority,
+            idempotency_key: idempotency_key.clone(),
+            input_blob: None,
         };
+        let (record, created) = if asked.is_none() {
+            // The latest version, taken for a request that named none, may be deleted by
+            // newer ones before the record is made (`--keep-versions`): it then takes the
+            // latest as the store finds it.
+            let at = |version: i64| {
+                let mut s = spec.clone();
+                s.version = u32::try_from(version).ok();
+                serde_json::to_string(&s).expect("a spec serialises")
+            };
+            self.store().create_job_latest(new, &at).await?
+        } else {
+            self.store().create_job(new).await?
+        };
+        spec.version = u32::try_from(record.version).ok();
         if created {
             if let Some(url) = &spec.callback {
                 // Owed from now on, so that a crash before the job ends still delivers.
@@ -306,6 +304,10 @@ impl App {
         let asked = params.version;
         let (geometry, _) = self.geometry(scene, asked, params.time).await?;
         // As for renders: a retry finds its job first (the rays named by their hash).
+        let _key = match &idempotency_key {
+            Some(k) => Some(self.inner.keys.lock(k).await),
+            None => None,
+        };
         let rays_id = crate::store::BlobId::of(&rays_body).to_string();
         if let Some(job) = self
             .retried(&idempotency_key, JobKind::Trace, scene, |version| {
@@ -327,39 +329,32 @@ impl App {
         }
         let ticket = self.engine().scheduler().admit(50, false)?;
         let rays_blob = self.store().put_blob(rays_body).await?;
-        let mut version = geometry.key.version;
-        let mut tries = 0;
-        let (record, request) = loop {
+        let request_at = |version: i64| {
             let mut params = params;
-            params.version = Some(version);
-            let request = TraceJobRequest {
+            params.version = u32::try_from(version).ok();
+            TraceJobRequest {
                 params,
                 rays_blob: rays_blob.to_string(),
-            };
-            let created = self
-                .store()
-                .create_job(NewJob {
-                    kind: JobKind::Trace,
-                    scene_id: scene.to_string(),
-                    version: i64::from(version),
-                    request: serde_json::to_string(&request).expect("serialises"),
-                    priority: 50,
-                    idempotency_key: idempotency_key.clone(),
-                    input_blob: Some(rays_blob.clone()),
-                })
-                .await;
-            match created {
-                // As for renders: the latest version went meanwhile; take it again.
-                Err(StoreError::NotFound {
-                    what: "version", ..
-                }) if asked.is_none() && tries < LATEST_TRIES => {
-                    tries += 1;
-                    version = self.geometry(scene, None, params.time).await?.0.key.version;
-                }
-                r => break (r?, request),
             }
         };
-        let (record, created) = record;
+        let new = NewJob {
+            kind: JobKind::Trace,
+            scene_id: scene.to_string(),
+            version: i64::from(geometry.key.version),
+            request: serde_json::to_string(&request_at(i64::from(geometry.key.version)))
+                .expect("serialises"),
+            priority: 50,
+            idempotency_key: idempotency_key.clone(),
+            input_blob: Some(rays_blob.clone()),
+        };
+        // As for renders: the latest version may go before the record is made.
+        let (record, created) = if asked.is_none() {
+            let at = |v: i64| serde_json::to_string(&request_at(v)).expect("serialises");
+            self.store().create_job_latest(new, &at).await?
+        } else {
+            self.store().create_job(new).await?
+        };
+        let request = request_at(record.version);
         if created {
             self.start(record.clone(), Work::Trace(request), ticket);
         }
@@ -709,6 +704,13 @@ impl App {
     pub(super) fn stop_deleted(&self, ids: &[String]) {
         for l in ids.iter().filter_map(|id| self.take_live(id)) {
             l.cancel.cancel();
+            // Its event streams end on a final state, as every stream does, saying why;
+            // the record itself is gone with the scene.
+            let mut view = l.events.borrow().clone();
+            view.state = JobState::Cancelled;
+            view.finished_at = Some(crate::store::now_millis());
+            view.error = Some("its scene was deleted".to_string());
+            show(&l.events, &view);
         }
     }
 

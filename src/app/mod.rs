@@ -9,6 +9,7 @@
 
 mod callbacks;
 mod jobs;
+mod keys;
 mod scenes;
 mod spec;
 mod thumbnails;
@@ -134,6 +135,8 @@ struct Inner {
     callbacks: Option<Arc<dyn CallbackSender>>,
     /// Jobs whose callback a task is delivering now.
     delivering: Mutex<HashSet<String>>,
+    /// Submissions carrying an `Idempotency-Key`, one at a time per key.
+    keys: keys::KeyLocks,
 }
 
 impl App {
@@ -150,6 +153,7 @@ impl App {
                 observer: options.observer,
                 callbacks: options.callbacks,
                 delivering: Mutex::new(HashSet::new()),
+                keys: keys::KeyLocks::default(),
                 max_triangles: options.max_triangles,
                 thumbnails: thumbnails::Thumbnails::new(weak.clone()),
             }),

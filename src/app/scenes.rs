@@ -21,6 +21,10 @@ use crate::scene::Scene;
 use crate::store::StoreError;
 use crate::store::{BlobId, NewScene, SceneRecord};
 
+/// How many times a request that named no version takes the latest again when newer
+/// versions deleted it (`--keep-versions`) before its file was read.
+const LATEST_TRIES: u32 = 16;
+
 /// What an upload is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum UploadKind {
@@ -543,13 +547,37 @@ impl App {
 
     /// The triangles of scene `id` at `version` (default: the latest) and `time` (version
     /// 1 only), and the scene's cameras at that time.
+    ///
+    /// The latest, when no version is named, is taken again if newer versions deleted it
+    /// (`--keep-versions`) while it was read: a client that names no version asked for
+    /// whatever is latest, and must not get a 404 for a version it never named.
     pub(super) async fn geometry(
         &self,
         id: &str,
         version: Option<u32>,
         time: Option<f64>,
     ) -> Result<(Geometry, Cameras), AppError> {
+        let mut tries = 1;
+        loop {
+            match self.geometry_once(id, version, time).await {
+                Err(AppError::Store(StoreError::NotFound {
+                    what: "version" | "blob",
+                    ..
+                })) if version.is_none() && tries < LATEST_TRIES => tries += 1,
+                r => return r,
+            }
+        }
+    }
+
+    /// [`App::geometry`], taking the latest once.
+    async fn geometry_once(
+        &self,
+        id: &str,
+        version: Option<u32>,
+        time: Option<f64>,
+    ) -> Result<(Geometry, Cameras), AppError> {
         let latest = self.store().get_scene(id).await?.latest_version as u32;
+        let named = version.is_some();
         let version = version.unwrap_or(latest);
         if version == 0 || version > latest {
             return Err(crate::store::StoreError::NotFound {
@@ -604,10 +632,15 @@ impl App {
             .keep_geometry(key.clone(), Arc::clone(&tris), Arc::clone(&cameras));
         if version >= 2 {
             // A newer version may have deleted this one while it was read: then it must
-            // not stay in memory, answering there as it no longer does from the store.
+            // not stay in memory, answering there as it no longer does from the store. A
+            // request for the latest is still answered with it: it was the latest when the
+            // request came (a request that waited for the pool behind a render while
+            // versions arrived would otherwise never find one that stayed).
             if let Err(e) = self.store().get_version(id, i64::from(version)).await {
                 self.inner.scenes.forget_versions(id, &[i64::from(version)]);
-                return Err(e.into());
+                if named {
+                    return Err(e.into());
+                }
             }
         }
         Ok((

@@ -26,6 +26,13 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     let addr = args.addr;
     let state = AppState::new(args)?;
     let config = state.config.clone();
+    // The signals first: one that comes while the store opens starts the shutdown (the
+    // server then stops as soon as it has started) instead of killing the process.
+    service::health::shutdown_on_signals(state.ready.clone(), state.shutdown.clone())
+        .map_err(|source| io("cannot install the SIGTERM handler", source))?;
+    #[cfg(unix)]
+    service::auth::reload_on_sighup(state.auth.clone(), state.shutdown.clone())
+        .map_err(|source| io("cannot install the SIGHUP handler", source))?;
     // The callback options before the store: a bad one stops the start with its message.
     let callbacks = service::callback::CallbackClient::from_options(
         &config.callback_allow,
@@ -74,11 +81,26 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         .layer(axum::Extension(app.clone()));
     let listener =
         service::bind(addr).map_err(|source| io(&format!("cannot listen on {addr}"), source))?;
-    service::health::shutdown_on_signals(state.ready.clone(), state.shutdown.clone())
-        .map_err(|source| io("cannot install the SIGTERM handler", source))?;
-    #[cfg(unix)]
-    service::auth::reload_on_sighup(state.auth.clone(), state.shutdown.clone())
-        .map_err(|source| io("cannot install the SIGHUP handler", source))?;
+    // The signal reaches the engine at once: no job starts from then on, and the ones
+    // running get what is left of the grace period once the connections have drained.
+    let signalled = {
+        let (shutdown, sched) = (state.shutdown.clone(), Arc::clone(engine.scheduler()));
+        tokio::spawn(async move {
+            shutdown.cancelled().await;
+            sched.shut_down();
+            std::time::Instant::now()
+        })
+    };
+    // Answering from now on: `/readyz` says 503 (starting), and `/v1` refuses work, until
+    // the last run's jobs are queued again and the demo scenes are in.
+    let serving = tokio::spawn(service::serve(
+        listener,
+        router,
+        state.server_options(),
+        state.ready.clone(),
+        state.shutdown.clone(),
+        state.metrics.clone(),
+    ));
     // Jobs that were queued or running when the last process ended run again.
     let recovered = app
         .recover()
@@ -92,28 +114,12 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
     }
     state.metrics.sample_with(sampler(Arc::clone(&engine)));
     spawn_housekeeping(state.clone(), app.clone());
-    // The signal reaches the engine at once: no job starts from then on, and the ones
-    // running get what is left of the grace period once the connections have drained.
-    let signalled = {
-        let (shutdown, sched) = (state.shutdown.clone(), Arc::clone(engine.scheduler()));
-        tokio::spawn(async move {
-            shutdown.cancelled().await;
-            sched.shut_down();
-            std::time::Instant::now()
-        })
-    };
     state.ready.set_ready();
-    tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is listening");
-    let stopped = service::serve(
-        listener,
-        router,
-        state.server_options(),
-        state.ready.clone(),
-        state.shutdown.clone(),
-        state.metrics.clone(),
-    )
-    .await
-    .map_err(|source| io("serving failed", source))?;
+    tracing::info!(%addr, data_dir = %config.data_dir.display(), "rayd serve is ready");
+    let stopped = serving
+        .await
+        .map_err(|e| io("serving failed", std::io::Error::other(e)))?
+        .map_err(|source| io("serving failed", source))?;
     // No new work (the task refused it when the signal came). Running jobs finish within
     // the grace period, counted from the signal; one still running then stays `running`
     // in the store, and the next start runs it again from the beginning. `serve` returns

@@ -120,7 +120,7 @@ impl Scheduler {
     /// request a client waits for, which shortens running jobs' waves for a while.
     pub fn admit(self: &Arc<Self>, priority: u16, interactive: bool) -> Result<Ticket, JobError> {
         let mut s = self.lock();
-        self.room(&s)?;
+        self.room(&s, priority == SYNC_PRIORITY)?;
         s.queued += 1;
         s.next_seq += 1;
         if interactive {
@@ -138,12 +138,15 @@ impl Scheduler {
     /// request whose place is taken only after its body has arrived is refused at once
     /// when the queue is already full or the service is shutting down.
     pub fn has_room(&self) -> Result<(), JobError> {
-        self.room(&self.lock())
+        self.room(&self.lock(), false)
     }
 
-    /// Why a job could not be admitted in state `s`, if it could not.
-    fn room(&self, s: &State) -> Result<(), JobError> {
-        if s.shutting_down {
+    /// Why a job could not be admitted in state `s`, if it could not. A synchronous trace
+    /// (`sync`) is admitted while shutting down: it is a request in flight, whose body
+    /// began before the signal ([`Scheduler::has_room`] refused it at its head otherwise),
+    /// and in-flight requests get the grace period.
+    fn room(&self, s: &State, sync: bool) -> Result<(), JobError> {
+        if s.shutting_down && !sync {
             return Err(JobError::ShuttingDown);
         }
         let waiting = s.queued - s.queued_background;
@@ -212,8 +215,12 @@ impl Scheduler {
                 return Err(JobError::Cancelled);
             }
             // Once shutting down, no job starts: a queued one stays queued for the next
-            // start, and the grace period is the running ones' alone.
-            if s.shutting_down && !ticket.started.load(Ordering::Acquire) {
+            // start, and the grace period is the running ones' alone (and the requests'
+            // in flight: a synchronous trace still runs).
+            if s.shutting_down
+                && !ticket.started.load(Ordering::Acquire)
+                && ticket.rank.0 .0 != SYNC_PRIORITY
+            {
                 s.waiting.remove(&ticket.rank);
                 self.wake.notify_all();
                 return Err(JobError::ShuttingDown);
@@ -443,7 +450,16 @@ mod tests {
     #[test]
     fn shutting_down_refuses_work() {
         let s = Scheduler::new(4, 4);
+        let queued = s.admit(50, false).unwrap();
         s.shut_down();
         assert!(matches!(s.admit(50, false), Err(JobError::ShuttingDown)));
+        assert!(matches!(s.has_room(), Err(JobError::ShuttingDown)));
+        assert!(matches!(
+            queued.lease(&CancelToken::new()),
+            Err(JobError::ShuttingDown)
+        ));
+        // A synchronous trace whose body was on the way at the signal still runs.
+        let sync = s.admit(SYNC_PRIORITY, true).unwrap();
+        drop(sync.lease(&CancelToken::new()).unwrap());
     }
 }

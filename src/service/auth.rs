@@ -165,6 +165,8 @@ fn read_tokens(path: &Path) -> Result<Vec<TokenDigest>, AuthError> {
         path: path.to_owned(),
         source,
     })?;
+    // A byte order mark, as editors on Windows write one, is not part of the first line.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
     let mut digests = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let t = line.trim();
@@ -258,6 +260,14 @@ mod tests {
         std::fs::write(&f, "gamma\n").unwrap();
         assert_eq!(auth.reload().unwrap(), 1);
         assert!(auth.accepts(b"gamma") && !auth.accepts(b"alpha"));
+        // A file saved with a byte order mark: the mark is not part of its first line,
+        // a comment there stays a comment.
+        std::fs::write(&f, "\u{feff}# ops\r\ndelta\r\n").unwrap();
+        assert_eq!(auth.reload().unwrap(), 1);
+        assert!(auth.accepts(b"delta"));
+        std::fs::write(&f, "\u{feff}epsilon\n").unwrap();
+        assert_eq!(auth.reload().unwrap(), 1);
+        assert!(auth.accepts(b"epsilon"));
         assert!(Auth::disabled().check(None).is_ok());
     }
 }

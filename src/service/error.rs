@@ -74,6 +74,16 @@ struct Inner {
     refused: Option<&'static str>,
 }
 
+/// Every reason [`ApiError::refused`] gives: `rayd_requests_refused_total` shows each at 0
+/// from the start, so that a dashboard reads 0 rather than no data.
+pub(crate) const REFUSAL_REASONS: [&str; 5] = [
+    "body_budget",
+    "client_limit",
+    "queue_full",
+    "shutting_down",
+    "starting",
+];
+
 /// The reason a `503` refused a request before its work began, for
 /// `rayd_requests_refused_total` (the metrics middleware reads it off the response).
 #[derive(Clone, Copy, Debug)]
@@ -100,11 +110,11 @@ impl ApiError {
         }))
     }
 
-    /// Marks a `503` as a refusal for `reason` (`body_budget`, `client_limit`,
-    /// `queue_full`, `shutting_down`), which `rayd_requests_refused_total` counts: the
+    /// Marks a `503` as a refusal for `reason` (one of [`REFUSAL_REASONS`]), which `rayd_requests_refused_total` counts: the
     /// metrics middleware reads the mark off the response, so every refusal is counted in
     /// one place, wherever it was made.
     pub fn refused(mut self, reason: &'static str) -> Self {
+        debug_assert!(REFUSAL_REASONS.contains(&reason), "{reason}");
         self.0.refused = Some(reason);
         self
     }

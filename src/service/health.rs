@@ -111,6 +111,23 @@ pub async fn readyz(State(ready): State<Ready>) -> Response {
     }
 }
 
+/// Middleware of the `/v1` routes: 503 with `Retry-After` while the service is starting.
+/// The server answers from the moment it listens, so that `/healthz` and `/readyz` can
+/// say where it is while it re-queues the last run's jobs and loads its demo scenes; work
+/// taken before the re-queueing ended could be queued twice.
+pub async fn refuse_while_starting(
+    State(ready): State<Ready>,
+    req: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    if ready.phase() == Phase::Starting {
+        return ApiError::unavailable("the service is starting", 1)
+            .refused("starting")
+            .into_response();
+    }
+    next.run(req).await
+}
+
 /// Waits for SIGTERM or SIGINT, then marks the service draining and triggers `shutdown`.
 /// Returns at once (spawning the waiter) so the caller can go on to serve.
 pub fn shutdown_on_signals(ready: Ready, shutdown: Shutdown) -> std::io::Result<()> {

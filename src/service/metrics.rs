@@ -22,6 +22,7 @@ use prometheus::{
 
 use super::error::ApiError;
 use crate::jobs::cache::CacheStats;
+use crate::store::JobKind;
 
 /// The media type of the text exposition format.
 pub const PROMETHEUS_TEXT: &str = "text/plain; version=0.0.4; charset=utf-8";
@@ -255,13 +256,22 @@ impl Metrics {
                 IntCounterVec::new(
                     Opts::new(
                         "requests_refused_total",
-                        "Requests answered 503 before their work began, by reason (body_budget, client_limit, queue_full, shutting_down).",
+                        "Requests answered 503 before their work began, by reason (body_budget, client_limit, queue_full, shutting_down, starting).",
                     ),
                     &["reason"],
                 )?,
             )?,
             registry,
             sampler: Arc::new(OnceLock::new()),
+        })
+        .inspect(|m| {
+            // Every label value the documentation lists, at 0 from the first scrape.
+            for kind in [JobKind::Trace, JobKind::Render] {
+                m.job_duration.with_label_values(&[kind.as_str()]);
+            }
+            for reason in super::error::REFUSAL_REASONS {
+                m.body_refused.with_label_values(&[reason]);
+            }
         })
     }
 

@@ -233,7 +233,11 @@ pub fn router(state: AppState, v1: Routes) -> Router {
             state.clients.clone(),
             body::limit_per_client,
         ))
-        .route_layer(from_fn_with_state(state.auth.clone(), auth::require_token));
+        .route_layer(from_fn_with_state(state.auth.clone(), auth::require_token))
+        .route_layer(from_fn_with_state(
+            state.ready.clone(),
+            health::refuse_while_starting,
+        ));
     public_routes()
         .router
         .merge(v1)

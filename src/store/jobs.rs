@@ -14,6 +14,7 @@ use super::records::{
     now_millis, page_size, JobOutcome, JobRecord, JobState, ListKind, Millis, NewJob, ResultBlob,
 };
 use super::scenes::check_label;
+use super::scenes::Doomed;
 use super::Store;
 
 macro_rules! job_cols {
@@ -68,6 +69,29 @@ impl Store {
     /// [`StoreError::Conflict`] if the retry asks for something else; a new job comes with
     /// `true`.
     pub async fn create_job(&self, new: NewJob) -> Result<(JobRecord, bool)> {
+        self.create(new, None).await
+    }
+
+    /// [`Store::create_job`] for a job that asked for the latest version: if `new.version`,
+    /// the latest when the caller looked, was deleted by newer versions (`keep_versions`)
+    /// before this transaction, the job takes the scene's latest version as the
+    /// transaction reads it, with `request_at(latest)` as its request. (Read apart from the
+    /// insert, the latest could be deleted again before the insert every time: each new
+    /// version's transaction is queued for the one writer ahead of the job's.) Version 1 is
+    /// never deleted, so a request that only version 1 answers (a time, frames) keeps it.
+    pub async fn create_job_latest(
+        &self,
+        new: NewJob,
+        request_at: &(dyn Fn(i64) -> String + Send + Sync),
+    ) -> Result<(JobRecord, bool)> {
+        self.create(new, Some(request_at)).await
+    }
+
+    async fn create(
+        &self,
+        mut new: NewJob,
+        request_at: Option<&(dyn Fn(i64) -> String + Send + Sync)>,
+    ) -> Result<(JobRecord, bool)> {
         if new.priority > 100 {
             return Err(StoreError::invalid(
                 "priority",
@@ -106,16 +130,25 @@ impl Store {
                 .await?
                 .is_some();
         if !version_exists {
-            let scene_exists = sqlx::query("SELECT 1 FROM scenes WHERE id = ?")
-                .bind(scene.as_str())
-                .fetch_optional(&mut *tx)
-                .await?
-                .is_some();
-            return Err(if scene_exists {
-                StoreError::not_found("version", format!("{scene}/versions/{}", new.version))
-            } else {
-                StoreError::not_found("scene", scene.as_str())
-            });
+            let latest: Option<i64> =
+                sqlx::query_scalar("SELECT latest_version FROM scenes WHERE id = ?")
+                    .bind(scene.as_str())
+                    .fetch_optional(&mut *tx)
+                    .await?;
+            match (latest, request_at) {
+                (Some(latest), Some(request_at)) if latest > new.version => {
+                    new.version = latest;
+                    new.request = request_at(latest);
+                    check_json("request", &new.request)?;
+                }
+                (Some(_), _) => {
+                    return Err(StoreError::not_found(
+                        "version",
+                        format!("{scene}/versions/{}", new.version),
+                    ))
+                }
+                (None, _) => return Err(StoreError::not_found("scene", scene.as_str())),
+            }
         }
         let row = sqlx::query(concat!(
             "INSERT INTO jobs (id, kind, scene_id, version, request, priority, state, progress, \
@@ -365,20 +398,26 @@ impl Store {
         }
     }
 
-    /// Deletes an ended job and its results (their blobs go at the next GC). A queued or
+    /// Deletes an ended job and its results (their blobs go at the next
+    /// [`Store::collect_pruned`] unless another record names the same bytes). A queued or
     /// running job must be cancelled first ([`StoreError::Conflict`]).
     pub async fn delete_job(&self, id: &str) -> Result<()> {
         check_job_id(id)?;
+        let mut tx = self.inner.writer.begin().await?;
+        let blobs = job_blobs(&mut tx, "id = ?1", id).await?;
         let n = sqlx::query(
             "DELETE FROM jobs WHERE id = ? AND state IN ('succeeded', 'failed', 'cancelled')",
         )
         .bind(id)
-        .execute(&self.inner.writer)
+        .execute(&mut *tx)
         .await?
         .rows_affected();
         if n == 0 {
+            drop(tx);
             return Err(self.wrong_state(id, "succeeded, failed or cancelled").await);
         }
+        tx.commit().await?;
+        self.doom(Doomed::Job, blobs.iter().map(String::as_str));
         Ok(())
     }
 
@@ -411,4 +450,27 @@ impl Store {
 /// Whether `job` is past its `expires_at` at `now`: gone to every reader.
 fn expired(job: &JobRecord, now: Millis) -> bool {
     job.expires_at.is_some_and(|at| at <= now)
+}
+
+/// Every blob that the jobs matching `condition` (on `jobs`, with `?1` bound to `value`)
+/// name: results, a sequence's frames and an async trace's rays. Read in the transaction
+/// that deletes them, so that their files can go at once instead of after GC's grace.
+pub(super) async fn job_blobs<'q, T>(
+    conn: &mut SqliteConnection,
+    condition: &str,
+    value: T,
+) -> Result<Vec<String>>
+where
+    T: 'q + sqlx::Encode<'q, sqlx::Sqlite> + sqlx::Type<sqlx::Sqlite> + Send,
+{
+    let sql = format!(
+        "SELECT result_blob FROM jobs WHERE ({condition}) AND result_blob IS NOT NULL \
+         UNION SELECT input_blob FROM jobs WHERE ({condition}) AND input_blob IS NOT NULL \
+         UNION SELECT blob FROM job_results WHERE job_id IN \
+         (SELECT id FROM jobs WHERE {condition})"
+    );
+    Ok(sqlx::query_scalar(sqlx::AssertSqlSafe(sql))
+        .bind(value)
+        .fetch_all(conn)
+        .await?)
 }

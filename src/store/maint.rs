@@ -12,6 +12,7 @@ use sqlx::{Connection, Row, SqliteConnection};
 use super::blob::{create_dir_durable, sync_dir, BlobDir, BlobId};
 use super::error::{Result, StoreError};
 use super::records::{JobRecord, Millis};
+use super::scenes::Doomed;
 use super::{blocking, Store, DB_FILE};
 
 /// Every blob a record names: versions, single results and frame results.
@@ -63,16 +64,23 @@ impl Store {
     }
 
     /// Deletes the finished jobs (and their result records) whose `expires_at` is at or
-    /// before `now`, in one transaction; returns how many. Their blobs go at the next GC.
+    /// before `now`, in one transaction; returns how many. Their blobs go at the next
+    /// [`Store::collect_pruned`] unless another record names the same bytes.
     pub async fn expire(&self, now: Millis) -> Result<u64> {
-        Ok(sqlx::query(
-            "DELETE FROM jobs WHERE expires_at IS NOT NULL AND expires_at <= ? \
-             AND state IN ('succeeded', 'failed', 'cancelled')",
-        )
+        const EXPIRED: &str = "expires_at IS NOT NULL AND expires_at <= ?1 \
+             AND state IN ('succeeded', 'failed', 'cancelled')";
+        let mut tx = self.inner.writer.begin().await?;
+        let blobs = super::jobs::job_blobs(&mut tx, EXPIRED, now).await?;
+        let n = sqlx::query(sqlx::AssertSqlSafe(format!(
+            "DELETE FROM jobs WHERE {EXPIRED}"
+        )))
         .bind(now)
-        .execute(&self.inner.writer)
+        .execute(&mut *tx)
         .await?
-        .rows_affected())
+        .rows_affected();
+        tx.commit().await?;
+        self.doom(Doomed::Job, blobs.iter().map(String::as_str));
+        Ok(n)
     }
 
     /// Deletes blob files that no record names and that are older than `gc_grace`.
@@ -98,15 +106,7 @@ impl Store {
             .iter()
             .map(|r| r.try_get::<String, _>(0))
             .collect::<Result<_, _>>()?;
-        let oldest_running: Option<Millis> =
-            sqlx::query_scalar("SELECT MIN(started_at) FROM jobs WHERE state = 'running'")
-                .fetch_one(&self.inner.reader)
-                .await?;
-        // A second's slack for file times coarser than the clock's.
-        let running_since = oldest_running.map(|ms| {
-            SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(ms.max(0) as u64)
-                - std::time::Duration::from_secs(1)
-        });
+        let running_since = self.running_since().await?;
         let blobs = Arc::clone(&self.inner.blobs);
         let grace = self.inner.options.gc_grace;
         blocking(&self.inner.dir, move || {
@@ -164,8 +164,10 @@ impl Store {
             }
         };
         let doomed = std::mem::take(&mut *self.pruned());
+        let running_since = self.running_since().await?;
         let mut unreferenced = Vec::new();
-        for id in doomed {
+        let jobs_from = doomed.versions.len();
+        for (k, id) in doomed.versions.into_iter().chain(doomed.jobs).enumerate() {
             let named: bool = sqlx::query_scalar(
                 "SELECT EXISTS (SELECT 1 FROM scene_versions WHERE blob = ?1) \
                  OR EXISTS (SELECT 1 FROM jobs WHERE result_blob = ?1 OR input_blob = ?1) \
@@ -177,15 +179,49 @@ impl Store {
             if named {
                 report.referenced += 1;
             } else {
-                unreferenced.push(id);
+                unreferenced.push((id, k >= jobs_from));
             }
         }
         let blobs = Arc::clone(&self.inner.blobs);
-        blocking(&self.inner.dir, move || {
-            delete_blob_files(&blobs, unreferenced, &mut report)?;
-            Ok(report)
+        let (report, kept) = blocking(&self.inner.dir, move || {
+            // A deleted job's bytes that a running job stored again (renewing the file)
+            // are that job's results, named only when it ends: kept, as GC keeps them, and
+            // tried again next time. (A version's bytes are never a result: positions
+            // files and images have different magic numbers.)
+            let (kept, gone): (Vec<_>, Vec<_>) =
+                unreferenced.into_iter().partition(|(id, of_job)| {
+                    *of_job
+                        && running_since.is_some_and(|since| {
+                            std::fs::metadata(blobs.path(id))
+                                .and_then(|m| m.modified())
+                                .is_ok_and(|modified| modified >= since)
+                        })
+                });
+            let kept: Vec<BlobId> = kept.into_iter().map(|(id, _)| id).collect();
+            let gone = gone.into_iter().map(|(id, _)| id).collect();
+            report.kept_recent += kept.len() as u64;
+            delete_blob_files(&blobs, gone, &mut report)?;
+            Ok((report, kept))
         })
-        .await
+        .await?;
+        if !kept.is_empty() {
+            self.pruned().jobs.extend(kept);
+        }
+        Ok(report)
+    }
+
+    /// When the longest-running job started, less a second's slack for file times coarser
+    /// than the clock's: blobs written or renewed since may be a running job's results,
+    /// which its record names only when it ends. `None` when no job runs.
+    async fn running_since(&self) -> Result<Option<SystemTime>> {
+        let oldest_running: Option<Millis> =
+            sqlx::query_scalar("SELECT MIN(started_at) FROM jobs WHERE state = 'running'")
+                .fetch_one(&self.inner.reader)
+                .await?;
+        Ok(oldest_running.map(|ms| {
+            SystemTime::UNIX_EPOCH + std::time::Duration::from_millis(ms.max(0) as u64)
+                - std::time::Duration::from_secs(1)
+        }))
     }
 
     /// Writes a consistent copy of the store to `dest` (a new or empty directory) while the

@@ -134,10 +134,11 @@ struct Inner {
     /// and exclusively by GC while it decides and deletes: so GC never deletes a blob that
     /// a concurrent upload has just renewed or a record has just referenced.
     gc_gate: RwLock<()>,
-    /// Blobs of versions deleted by `keep_versions`, for [`Store::collect_pruned`] to
-    /// delete at once rather than after `gc_grace` (a client sending a version a frame
-    /// would otherwise keep 15 minutes of frames on disk).
-    pruned: std::sync::Mutex<Vec<BlobId>>,
+    /// Blobs of deleted versions and jobs, for [`Store::collect_pruned`] to delete at once
+    /// rather than after `gc_grace` (a client sending a version a frame would otherwise
+    /// keep 15 minutes of frames on disk, and deleted results would fill
+    /// `--max-store-bytes`).
+    pruned: std::sync::Mutex<scenes::Pruned>,
     /// Woken when `pruned` gains blobs.
     pruned_ready: tokio::sync::Notify,
     /// The flocks on `DIR/lock` and on `DIR` itself ([`take_lock`]); released when the last
@@ -209,7 +210,7 @@ impl Store {
                 writer,
                 reader,
                 gc_gate: RwLock::new(()),
-                pruned: std::sync::Mutex::new(Vec::new()),
+                pruned: std::sync::Mutex::new(scenes::Pruned::default()),
                 pruned_ready: tokio::sync::Notify::new(),
                 _lock: lock,
             }),

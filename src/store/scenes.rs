@@ -31,8 +31,32 @@ pub struct NewScene {
 /// enough that a client cannot fill the database through them.
 pub(crate) const MAX_LABEL: usize = 1024;
 
-/// Most blobs of deleted versions kept for [`Store::collect_pruned`].
+/// Most blobs of deleted versions (and, apart, of deleted jobs) kept for
+/// [`Store::collect_pruned`].
 const MAX_DOOMED: usize = 1 << 16;
+
+/// What a doomed blob's deleted record was.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Doomed {
+    /// A geometry version (or a scene's upload).
+    Version,
+    /// A job: its result, a sequence's frame or an async trace's rays. The same bytes may
+    /// be a running job's result not yet recorded, which [`Store::collect_pruned`] keeps.
+    Job,
+}
+
+/// Blobs whose records were deleted, awaiting [`Store::collect_pruned`].
+#[derive(Debug, Default)]
+pub(super) struct Pruned {
+    pub(super) versions: Vec<BlobId>,
+    pub(super) jobs: Vec<BlobId>,
+}
+
+impl Pruned {
+    pub(super) fn is_empty(&self) -> bool {
+        self.versions.is_empty() && self.jobs.is_empty()
+    }
+}
 
 /// The condition, on a `scene_versions` row, that no job names it: a job's record keeps
 /// its version (and, by the foreign key's cascade, would go with it).
@@ -273,13 +297,17 @@ impl Store {
 
     /// Hands the blobs of deleted versions to [`Store::collect_pruned`].
     fn doom_blobs(&self, pruned: &[VersionRecord]) {
-        self.doom(pruned.iter().map(|v| v.blob.as_str()));
+        self.doom(Doomed::Version, pruned.iter().map(|v| v.blob.as_str()));
     }
 
     /// Hands blobs whose records were deleted to [`Store::collect_pruned`], which deletes
     /// those that no record names by then.
-    fn doom<'a>(&self, blobs: impl Iterator<Item = &'a str>) {
-        let mut doomed = self.pruned();
+    pub(super) fn doom<'a>(&self, kind: Doomed, blobs: impl Iterator<Item = &'a str>) {
+        let mut pruned = self.pruned();
+        let doomed = match kind {
+            Doomed::Version => &mut pruned.versions,
+            Doomed::Job => &mut pruned.jobs,
+        };
         let before = doomed.len();
         doomed.extend(blobs.filter_map(BlobId::parse));
         if doomed.len() == before {
@@ -290,12 +318,12 @@ impl Store {
             let over = doomed.len() - MAX_DOOMED;
             doomed.drain(..over);
         }
-        drop(doomed);
+        drop(pruned);
         self.inner.pruned_ready.notify_one();
     }
 
-    /// The blobs of deleted versions awaiting [`Store::collect_pruned`].
-    pub(super) fn pruned(&self) -> std::sync::MutexGuard<'_, Vec<BlobId>> {
+    /// The blobs of deleted records awaiting [`Store::collect_pruned`].
+    pub(super) fn pruned(&self) -> std::sync::MutexGuard<'_, Pruned> {
         self.inner.pruned.lock().unwrap_or_else(|e| e.into_inner())
     }
 
@@ -340,8 +368,8 @@ impl Store {
 
     /// Deletes a scene with its versions and all its jobs (their results included), in one
     /// transaction. Returns the ids of the deleted jobs that were still queued or running,
-    /// so the engine can stop them (their later updates find no job). The versions' blobs
-    /// go at the next [`Store::collect_pruned`], the jobs' at the next [`Store::gc`].
+    /// so the engine can stop them (their later updates find no job). Their blobs go at the
+    /// next [`Store::collect_pruned`] unless another record names the same bytes.
     pub async fn delete_scene(&self, id: &str) -> Result<Vec<String>> {
         let scene = BlobId::parse_or_not_found(id, "scene")?;
         let mut tx = self.inner.writer.begin().await?;
@@ -361,6 +389,7 @@ impl Store {
                 .bind(scene.as_str())
                 .fetch_all(&mut *tx)
                 .await?;
+        let job_blobs = super::jobs::job_blobs(&mut tx, "scene_id = ?1", scene.as_str()).await?;
         let deleted = sqlx::query("DELETE FROM scenes WHERE id = ?")
             .bind(scene.as_str())
             .execute(&mut *tx)
@@ -370,7 +399,8 @@ impl Store {
             return Err(StoreError::not_found("scene", scene.as_str()));
         }
         tx.commit().await?;
-        self.doom(blobs.iter().map(String::as_str));
+        self.doom(Doomed::Version, blobs.iter().map(String::as_str));
+        self.doom(Doomed::Job, job_blobs.iter().map(String::as_str));
         Ok(unfinished)
     }
 }

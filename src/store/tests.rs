@@ -331,6 +331,89 @@ async fn a_deleted_scenes_files_go_at_the_next_collection() {
     store.close().await;
 }
 
+/// A deleted or expired job's files (its result, a sequence's frames, an async trace's
+/// rays) go at the next `collect_pruned`, not after GC's grace, so that deleting results
+/// frees `max_bytes` at once; the same bytes stored again by a running job, not yet
+/// recorded, stay until it ends and names them.
+#[tokio::test]
+async fn a_deleted_jobs_files_go_at_the_next_collection_unless_a_running_job_stored_them() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = StoreOptions {
+        gc_grace: Duration::from_secs(900),
+        result_ttl: Some(Duration::from_secs(3600)),
+        ..StoreOptions::default()
+    };
+    let store = Store::open(tmp.path(), options).await.unwrap();
+    let s = scene(&store, b"scene").await;
+    let finish = |id: String, result: BlobId, frames: Vec<BlobId>| {
+        let store = store.clone();
+        async move {
+            store
+                .finish_job(
+                    &id,
+                    JobOutcome::Succeeded {
+                        stats: None,
+                        result: Some((result, "image/png".into())),
+                        frames: frames
+                            .into_iter()
+                            .map(|b| (b, "image/png".into()))
+                            .collect(),
+                    },
+                )
+                .await
+                .unwrap()
+        }
+    };
+    // A finished job with a result and frames, and an async trace's rays.
+    let mut with_rays = render_job(&s);
+    let rays = store.put_blob(b"rays".to_vec()).await.unwrap();
+    with_rays.input_blob = Some(rays.clone());
+    let (a, _) = store.create_job(with_rays).await.unwrap();
+    store.start_job(&a.id).await.unwrap();
+    let result = store.put_blob(b"result a".to_vec()).await.unwrap();
+    let frame = store.put_blob(b"frame a".to_vec()).await.unwrap();
+    finish(a.id.clone(), result.clone(), vec![frame.clone()]).await;
+    // Written an hour ago: a running job keeps what was written or renewed since it
+    // started (less a second), as GC does.
+    let hour_ago = SystemTime::now() - Duration::from_secs(3600);
+    for id in [&rays, &result, &frame] {
+        let path = tmp
+            .path()
+            .join("blobs")
+            .join(&id.as_str()[..2])
+            .join(id.as_str());
+        let f = std::fs::File::options().write(true).open(&path).unwrap();
+        f.set_modified(hour_ago).unwrap();
+    }
+    // Job b is running and has stored the same frame again, not yet recorded.
+    let (b, _) = store.create_job(render_job(&s)).await.unwrap();
+    store.start_job(&b.id).await.unwrap();
+    assert_eq!(store.put_blob(b"frame a".to_vec()).await.unwrap(), frame);
+    store.delete_job(&a.id).await.unwrap();
+    let report = store.collect_pruned(true).await.unwrap();
+    assert_eq!((report.deleted, report.kept_recent), (2, 1), "{report:?}");
+    for gone in [&result, &rays] {
+        assert!(matches!(
+            store.get_blob(gone.as_str()).await,
+            Err(StoreError::NotFound { .. })
+        ));
+    }
+    // The kept one is tried again: while b runs it stays; once b names it, it is
+    // referenced.
+    assert_eq!(store.collect_pruned(true).await.unwrap().kept_recent, 1);
+    let b_result = store.put_blob(b"result b".to_vec()).await.unwrap();
+    let done = finish(b.id.clone(), b_result.clone(), vec![frame.clone()]).await;
+    assert_eq!(store.collect_pruned(true).await.unwrap().referenced, 1);
+    assert_eq!(store.get_blob(frame.as_str()).await.unwrap(), b"frame a");
+    // Expired, b's files go at the next collection too, without waiting for GC's grace.
+    let expires = done.expires_at.unwrap();
+    assert_eq!(store.expire(expires).await.unwrap(), 1);
+    let report = store.collect_pruned(true).await.unwrap();
+    assert_eq!(report.deleted, 2, "{report:?}");
+    assert_eq!(store.get_blob(&s.id).await.unwrap(), b"scene");
+    store.close().await;
+}
+
 #[tokio::test]
 async fn migrations_are_recorded_and_run_once() {
     let tmp = tempfile::tempdir().unwrap();
