@@ -263,11 +263,11 @@ impl Interp {
         match self.corners.filter(|_| !colors.is_empty()) {
             None => Vec4::ONE,
             Some(c) => {
-                let mut sum = Vec4::ZERO;
-                for (k, &i) in c.iter().enumerate() {
-                    sum += colors.get(i as usize).copied().unwrap_or(Vec4::ONE) * self.b[k];
-                }
-                sum
+                // From the first corner by the differences to the others: corners of one
+                // colour give exactly that colour (a sum weighted by the three barycentrics
+                // gave alpha 1 as 0.99999994, which a MASK cutoff of 1 then cut).
+                let [c0, c1, c2] = c.map(|i| colors.get(i as usize).copied().unwrap_or(Vec4::ONE));
+                c0 + (c1 - c0) * self.b[1] + (c2 - c0) * self.b[2]
             }
         }
     }
@@ -581,15 +581,17 @@ impl Surfaces {
         // the normal map perturbs the front side's normal, and a back face then shows the
         // whole perturbed normal reversed, as glTF says of double-sided back faces. (The
         // normal already turned to the ray would build a mirrored tangent frame there.)
-        let smooth = at
-            .vec3(&self.shading.normals)
-            .and_then(Vec3::try_normalize)
-            .unwrap_or(face);
+        let stored = at.vec3(&self.shading.normals).and_then(Vec3::try_normalize);
+        let smooth = stored.unwrap_or(face);
         let mut ns = smooth;
         if let Some(r) = &m.normal_texture {
             if let Some(t) = t_normal {
-                if let Some(n) = self.tangent_frame(tri, at, smooth, r.tex_coord).and_then(
-                    |(tangent, bitangent)| {
+                // glTF: without normals, "the provided tangents (if present) MUST be
+                // ignored".
+                let given = stored.is_some();
+                if let Some(n) = self
+                    .tangent_frame(tri, at, smooth, r.tex_coord, given)
+                    .and_then(|(tangent, bitangent)| {
                         let s = m.normal_scale;
                         let local = Vec3::new(
                             (2.0 * t.x - 1.0) * s,
@@ -597,8 +599,8 @@ impl Surfaces {
                             2.0 * t.z - 1.0,
                         );
                         (tangent * local.x + bitangent * local.y + smooth * local.z).try_normalize()
-                    },
-                ) {
+                    })
+                {
                     ns = n;
                 }
             }
@@ -627,8 +629,8 @@ impl Surfaces {
     }
 
     /// The unit tangent and bitangent of normal `n` at `at`: the mesh's `TANGENT`
-    /// (bitangent = n × t · w, as glTF defines), or, where the mesh has none, the
-    /// triangle's gradient of `TEXCOORD_set`, with the bitangent along decreasing v (the
+    /// (bitangent = n × t · w, as glTF defines) when `tangents` allows it, or, where the
+    /// mesh has none, the triangle's gradient of `TEXCOORD_set`, with the bitangent along decreasing v (the
     /// texture's +Y is up in the image, and glTF's v grows downwards). `None` where
     /// neither defines a frame (degenerate UVs).
     fn tangent_frame(
@@ -637,8 +639,9 @@ impl Surfaces {
         at: &Interp,
         n: Vec3,
         set: u32,
+        tangents: bool,
     ) -> Option<(Vec3, Vec3)> {
-        let given = at.corners.and_then(|c| {
+        let given = at.corners.filter(|_| tangents).and_then(|c| {
             let t = &self.shading.tangents;
             let mut sum = Vec3::ZERO;
             for (k, &i) in c.iter().enumerate() {
@@ -766,6 +769,16 @@ mod tests {
     /// A triangle in the XY plane facing +Z, with u along +X and v along −Y (glTF's v
     /// grows down the image), and a normal texture of the one texel `rgb`.
     fn normal_mapped(rgb: [f32; 3], scale: f32, tangents: Vec<Vec4>) -> (Surfaces, Triangle) {
+        normal_mapped_with(rgb, scale, tangents, Vec::new())
+    }
+
+    /// [`normal_mapped`] with vertex normals.
+    fn normal_mapped_with(
+        rgb: [f32; 3],
+        scale: f32,
+        tangents: Vec<Vec4>,
+        normals: Vec<Vec3>,
+    ) -> (Surfaces, Triangle) {
         use super::super::texture::{Texels, TextureSet};
         use crate::render::mipmap::Filtering;
         use crate::scene::{Filter, Wrap};
@@ -780,6 +793,7 @@ mod tests {
             Vec2::new(0.0, 0.0),
         ];
         shading.tangents = tangents;
+        shading.normals = normals;
         let material = Material {
             normal_texture: Some(TextureRef {
                 texture: 0,
@@ -827,9 +841,13 @@ mod tests {
         // The mesh's TANGENT wins over the UV gradient: here +Y, so +X of the texture
         // tilts towards +Y.
         let t = vec![Vec4::new(0.0, 1.0, 0.0, 1.0); 3];
-        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, t);
+        let (s, tri) = normal_mapped_with([0.8, 0.5, 0.9], 1.0, t.clone(), vec![Vec3::Z; 3]);
         let n = shading_normal(&s, &tri, down);
         assert!((n - Vec3::new(0.0, 0.6, 0.8)).length() < 1e-5, "{n}");
+        // Unless the mesh has no normals: glTF says its tangents are then ignored.
+        let (s, tri) = normal_mapped([0.8, 0.5, 0.9], 1.0, t);
+        let n = shading_normal(&s, &tri, down);
+        assert!((n - Vec3::new(0.6, 0.0, 0.8)).length() < 1e-5, "{n}");
         // Seen from behind, the whole perturbed normal is reversed (glTF: a double-sided
         // back face's normals are reversed), with vertex normals or without (here none),
         // and with a mesh TANGENT.
@@ -840,9 +858,32 @@ mod tests {
         let n = shading_normal(&s, &tri, Vec3::Z);
         assert!((n - Vec3::new(0.0, -0.6, -0.8)).length() < 1e-5, "{n}");
         let t = vec![Vec4::new(1.0, 0.0, 0.0, 1.0); 3];
-        let (s, tri) = normal_mapped([0.5, 0.8, 0.9], 1.0, t);
+        let (s, tri) = normal_mapped_with([0.5, 0.8, 0.9], 1.0, t, vec![Vec3::Z; 3]);
         let n = shading_normal(&s, &tri, Vec3::Z);
         assert!((n - Vec3::new(0.0, -0.6, -0.8)).length() < 1e-5, "{n}");
+    }
+
+    /// Corners of one vertex colour give exactly that colour anywhere on the triangle: an
+    /// alpha of 1 read as 0.99999994 was cut by a MASK cutoff of 1 (and 0.5 × that by the
+    /// default 0.5 under a base colour alpha of 0.5).
+    #[test]
+    fn equal_vertex_colours_interpolate_exactly() {
+        let colour = Vec4::new(0.3, 0.7, 0.1, 1.0);
+        let colors = vec![colour; 3];
+        let mut rng = crate::render::rng::Pcg32::new(7, 1);
+        for _ in 0..10_000 {
+            let (u, v) = (rng.next_f32(), rng.next_f32());
+            let (u, v) = if u + v > 1.0 {
+                (1.0 - u, 1.0 - v)
+            } else {
+                (u, v)
+            };
+            let at = Interp {
+                corners: Some([0, 1, 2]),
+                b: [1.0 - u - v, u, v],
+            };
+            assert_eq!(at.colour(&colors), colour, "at ({u}, {v})");
+        }
     }
 
     /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
