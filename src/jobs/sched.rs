@@ -195,6 +195,17 @@ impl Scheduler {
         };
         s.waiting.insert(ticket.rank, waiter);
         loop {
+            // Once shutting down, no job starts, even on a free pool: a queued one stays
+            // queued for the next start, and the grace period is the running ones' alone
+            // (and the requests' in flight: a synchronous trace still runs).
+            if s.shutting_down
+                && !ticket.started.load(Ordering::Acquire)
+                && ticket.rank.0 .0 != SYNC_PRIORITY
+            {
+                s.waiting.remove(&ticket.rank);
+                self.wake.notify_all();
+                return Err(JobError::ShuttingDown);
+            }
             if !s.held && self.next(&s) == Some(ticket.rank) {
                 s.waiting.remove(&ticket.rank);
                 s.held = true;
@@ -213,17 +224,6 @@ impl Scheduler {
                 // Someone else may rank first now.
                 self.wake.notify_all();
                 return Err(JobError::Cancelled);
-            }
-            // Once shutting down, no job starts: a queued one stays queued for the next
-            // start, and the grace period is the running ones' alone (and the requests'
-            // in flight: a synchronous trace still runs).
-            if s.shutting_down
-                && !ticket.started.load(Ordering::Acquire)
-                && ticket.rank.0 .0 != SYNC_PRIORITY
-            {
-                s.waiting.remove(&ticket.rank);
-                self.wake.notify_all();
-                return Err(JobError::ShuttingDown);
             }
             // Cancellation does not notify; poll it while waiting.
             s = self
