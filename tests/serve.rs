@@ -930,7 +930,7 @@ fn deleting_a_scene_stops_its_jobs() {
                     let last = String::from_utf8_lossy(&r.body)
                         .lines()
                         .filter_map(|l| l.strip_prefix("data:"))
-                        .last()
+                        .next_back()
                         .map(|d| serde_json::from_str::<serde_json::Value>(d.trim()).unwrap());
                     last.expect("at least one event")
                 })
