@@ -1205,3 +1205,106 @@ fn scenes_with_non_finite_triangles_do_not_crash_the_cores() {
         }
     }
 }
+
+/// Triangles whose test products leave f32's range though their inputs do not
+/// (`proto/semantics.md`, "The range the tests decide in"): a ground quad 2e13 wide seen
+/// at shallow angles and a cube of half-side 2^43 seen from its centre (the t numerator,
+/// extent² × depth, overflows), and a triangle of area 5e-41 seen head on (its
+/// determinant is subnormal, whose reciprocal overflows). `watertight` hits them all, on
+/// every core alike (they missed, every core and Embree too, until the lanes that leave
+/// the range were rescaled by a power of two).
+#[test]
+fn triangles_whose_products_leave_f32s_range_are_still_hit() {
+    let precision = Precision::Watertight;
+    let watertight_cores = || kinds().into_iter().filter(|k| *k != AccelKind::Embree);
+    let same_everywhere = |tris: &[Triangle], rays: &[Ray]| -> Vec<Hit> {
+        let reference = trace(AccelKind::Brute, precision, tris, rays);
+        for kind in watertight_cores() {
+            let hits = trace(kind, precision, tris, rays);
+            for (i, (h, b)) in hits.iter().zip(&reference).enumerate() {
+                assert_eq!(bits(h), bits(b), "{} ray {i}: {:?}", kind.name(), rays[i]);
+            }
+        }
+        reference
+    };
+    // The ground quad, half-size 1e13, in the plane y = 0.
+    let h = 1e13f32;
+    let quad = vec![
+        Triangle {
+            v: [[-h, 0.0, -h], [h, 0.0, -h], [h, 0.0, h]],
+        },
+        Triangle {
+            v: [[-h, 0.0, -h], [h, 0.0, h], [-h, 0.0, h]],
+        },
+    ];
+    let mut rng = Rng(11);
+    let mut rays = vec![ray([0.3, 1.0, 0.2], [0.5, -0.2, 1.0], 0.0, f32::MAX)];
+    for _ in 0..200 {
+        // Downwards at shallow angles, from a metre up.
+        let (x, z) = (rng.sym(), rng.sym());
+        let dy = -(0.01 + 0.5 * rng.unit());
+        rays.push(ray([rng.sym(), 1.0, rng.sym()], [x, dy, z], 0.0, f32::MAX));
+    }
+    let hits = same_everywhere(&quad, &rays);
+    for (r, h) in rays.iter().zip(&hits) {
+        let want = -r.org[1] / r.dir[1];
+        assert!(h.is_hit(), "{r:?} missed the ground");
+        assert!(
+            (h.t - want).abs() <= 1e-5 * want,
+            "{r:?}: t {} for {want}",
+            h.t
+        );
+    }
+    // The cube of half-side 2^43 about the origin (vertices exact in f32), from inside:
+    // every ray leaves through a face, none through a crack.
+    let side = 2f32.powi(44);
+    let half = 2f32.powi(43);
+    let cube_tris: Vec<Triangle> = cube(4, side)
+        .into_iter()
+        .map(|t| Triangle {
+            v: t.v.map(|p| p.map(|x| x - half)),
+        })
+        .collect();
+    let rays: Vec<Ray> = (0..500)
+        .map(|_| {
+            let d = [rng.sym(), rng.sym(), rng.sym()];
+            let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-3);
+            ray([0.0; 3], d.map(|x| x / n), 0.0, f32::MAX)
+        })
+        .collect();
+    let hits = same_everywhere(&cube_tris, &rays);
+    for (r, h) in rays.iter().zip(&hits) {
+        assert!(h.is_hit(), "{r:?} left the cube");
+        let largest = r.dir.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+        let want = half / largest;
+        assert!(
+            (h.t - want).abs() <= 1e-4 * want,
+            "{r:?}: t {} for {want}",
+            h.t
+        );
+    }
+    // A right triangle of legs 1e-20 (area 5e-41), head on from either side.
+    let a = 1e-20f32;
+    let tiny = vec![Triangle {
+        v: [[0.0, 0.0, 1.0], [a, 0.0, 1.0], [0.0, a, 1.0]],
+    }];
+    let rays = vec![
+        ray([a / 4.0, a / 4.0, 0.0], [0.0, 0.0, 1.0], 0.0, f32::MAX),
+        ray([a / 4.0, a / 4.0, 2.0], [0.0, 0.0, -1.0], 0.0, f32::MAX),
+        ray([a, a, 0.0], [0.0, 0.0, 1.0], 0.0, f32::MAX),
+    ];
+    let hits = same_everywhere(&tiny, &rays);
+    for (r, h) in rays.iter().zip(&hits).take(2) {
+        assert!(h.is_hit(), "{r:?} missed the tiny triangle");
+        assert!((h.t - 1.0).abs() < 1e-6, "{r:?}: t {}", h.t);
+        assert!(
+            (h.u - 0.25).abs() < 1e-5 && (h.v - 0.25).abs() < 1e-5,
+            "{h:?}"
+        );
+    }
+    assert!(
+        !hits[2].is_hit(),
+        "outside the tiny triangle: {:?}",
+        hits[2]
+    );
+}

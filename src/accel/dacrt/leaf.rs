@@ -15,7 +15,7 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{edges8, entry8, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{edges8, entry8, in_range8, MollerTrumbore, PreparedRay, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -169,15 +169,26 @@ impl LeafTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
-        let mask = inside & det.ne(zero) & t.ge(tmin) & t.le(tmax);
+        // Lanes whose products left f32's range, decided again as the scalar test does.
+        let (t, bu, bv, valid) = in_range8(
+            s,
+            &rel,
+            r.shear,
+            inside,
+            t,
+            v * rcp,
+            w * rcp,
+            inside & det.ne(zero),
+        );
+        let mask = valid & t.ge(tmin) & t.le(tmax);
         // The layer's decision t (`lift_t`), per ray.
         let t = entry8(s, &rel, r.inv).max(t);
         let mask = mask & t.le(tmax);
         Hit8 {
             mask,
             t,
-            u: v * rcp,
-            v: w * rcp,
+            u: bu,
+            v: bv,
         }
     }
 }

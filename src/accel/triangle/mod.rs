@@ -36,7 +36,7 @@ mod watertight;
 
 pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
-pub use watertight::{edges8, entry8, lift_t, refined_t, Watertight};
+pub use watertight::{edges8, entry8, in_range8, lift_t, refined_t, Watertight};
 
 use super::Precision;
 use crate::geometry::{Ray, Triangle};

@@ -20,7 +20,7 @@ use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Ray, Triangle};
 use crate::simd::scalar::{max_x86, min_x86};
-use crate::simd::{FloatV, MaskV, Simd};
+use crate::simd::{FloatV, MaskV, Select, Simd};
 
 /// The watertight test (`precision=watertight`, the default).
 #[derive(Clone, Copy, Debug, Default)]
@@ -206,6 +206,134 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
     }
 }
 
+/// Whether a paper t is finite: the test's products stayed in f32's range. Where they did
+/// not (an edge function times a depth past f32's largest, or a determinant so small that
+/// its reciprocal overflows), the lane is decided again by [`rescaled_lane`].
+#[inline(always)]
+fn in_range(t: f32) -> bool {
+    t <= f32::MAX && t >= -f32::MAX
+}
+
+/// The paper's test on one triangle whose f32 products left f32's range, from its vertices
+/// relative to the ray origin (`rel[i]` in the ray's order `kx, ky, kz`): the sheared
+/// coordinates are computed as the test computes them, then the six across the ray are
+/// scaled by the power of two that brings their largest into [1, 2), and the three depths
+/// by another. Scaling by a power of two is exact, and every later step is the same f32
+/// operation on values scaled by powers of two (the edge functions and the determinant by
+/// the square of the first, the t numerator by that times the second), so the decision
+/// and (u, v) are those of f32 arithmetic without a limit on the exponent, and t is scaled
+/// back exactly: a 2e13-unit ground quad, a cube of half-side 1e13 seen from inside and a
+/// triangle of area 1e-40 are hit as smaller ones are. Shared edges stay watertight: an
+/// edge function is the same value scaled, so its sign is the one its neighbour, tested
+/// unscaled, finds. Every core calls this one function for such lanes (cold, out of the
+/// kernels), so they stay bit-identical. `None`: a miss (outside, a zero determinant, or
+/// a t beyond f32's range).
+#[cold]
+#[inline(never)]
+pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHit> {
+    let [sx, sy, sz] = shear;
+    let across = rel.map(|p| [p[0] - sx * p[2], p[1] - sy * p[2]]);
+    // The exponent that brings the largest of `xs` into [1, 2) (0 for none: all zero, or
+    // not finite, which no scaling mends).
+    let exponent = |xs: &mut dyn Iterator<Item = f32>| {
+        let m = xs.fold(0.0f32, |m, x| m.max(x.abs()));
+        (m > 0.0 && m <= f32::MAX).then(|| f64::from(m).log2().floor() as i32)
+    };
+    let e_xy = exponent(&mut across.iter().flatten().copied())?;
+    let e_z = exponent(&mut rel.iter().map(|p| p[2])).unwrap_or(0);
+    // x · 2^k, exact in f64 and then in f32 unless it falls below f32's normal range.
+    let scale = |x: f32, k: i32| (f64::from(x) * 2f64.powi(k)) as f32;
+    let [[ax, ay], [bx, by], [cx, cy]] = across.map(|p| p.map(|x| scale(x, -e_xy)));
+    let (a_z, b_z, c_z) = (
+        scale(rel[0][2], -e_z),
+        scale(rel[1][2], -e_z),
+        scale(rel[2][2], -e_z),
+    );
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        (u, v, w) = edges_f64(ax, ay, bx, by, cx, cy);
+    }
+    let inside = min_x86(min_x86(u, v), w) >= 0.0 || max_x86(max_x86(u, v), w) <= 0.0;
+    let det = u + v + w;
+    if !inside || det == 0.0 {
+        return None;
+    }
+    let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
+    let rcp = 1.0 / det;
+    // t scales as the depths do.
+    let t = scale(tt * rcp, e_z);
+    in_range(t).then_some(TriHit {
+        t,
+        u: v * rcp,
+        v: w * rcp,
+    })
+}
+
+/// The lanes of `bad` decided again by [`rescaled_lane`]: their paper t (`+inf` for a
+/// miss), barycentrics and validity, merged into the others'. Cold: only lanes whose
+/// products left f32's range come here.
+#[cold]
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn rescaled8<S: Simd>(
+    s: S,
+    bad: u32,
+    rel: &[[S::F8; 3]; 3],
+    shear: [S::F8; 3],
+    t: S::F8,
+    bu: S::F8,
+    bv: S::F8,
+    valid: S::M8,
+) -> (S::F8, S::F8, S::F8, S::M8) {
+    let rel = rel.map(|p| p.map(|x| x.to_array()));
+    let shear = shear.map(|x| x.to_array());
+    let (mut t, mut bu, mut bv) = (t.to_array(), bu.to_array(), bv.to_array());
+    let one = s.splat_f8(1.0);
+    let mut ok = valid.select(one, s.splat_f8(0.0)).to_array();
+    for lane in (0..8).filter(|l| bad >> l & 1 == 1) {
+        let r = rel.map(|p| p.map(|x| x[lane]));
+        match rescaled_lane(r, shear.map(|x| x[lane])) {
+            Some(h) => {
+                (t[lane], bu[lane], bv[lane], ok[lane]) = (h.t, h.u, h.v, 1.0);
+            }
+            None => {
+                (t[lane], ok[lane]) = (f32::INFINITY, 0.0);
+            }
+        }
+    }
+    (
+        s.load_f8(&t),
+        s.load_f8(&bu),
+        s.load_f8(&bv),
+        s.load_f8(&ok).eq(one),
+    )
+}
+
+/// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` whose
+/// t is not finite decided again by [`rescaled_lane`] (the scalar test's rule, lane for
+/// lane); shared by the layer's 8-triangle test and DACRT's 8-ray leaf test.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub fn in_range8<S: Simd>(
+    s: S,
+    rel: &[[S::F8; 3]; 3],
+    shear: [S::F8; 3],
+    inside: S::M8,
+    t: S::F8,
+    bu: S::F8,
+    bv: S::F8,
+    valid: S::M8,
+) -> (S::F8, S::F8, S::F8, S::M8) {
+    let big = s.splat_f8(f32::MAX);
+    let bad = inside.andnot(t.le(big) & t.ge(-big));
+    if bad.none() {
+        return (t, bu, bv, valid);
+    }
+    rescaled8(s, bad.bitmask(), rel, shear, t, bu, bv, valid)
+}
+
 impl Watertight {
     /// The paper's test on one triangle: its hit with the paper's own t, before the
     /// decision lift ([`lift_t`]) that `intersect_lane` applies.
@@ -237,6 +365,10 @@ impl Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = 1.0 / det;
         let t = tt * rcp;
+        if !in_range(t) {
+            let rel = [0, 1, 2].map(|i| [kx, ky, kz].map(|k| p[i][k] - r.org[k]));
+            return rescaled_lane(rel, r.shear).filter(|h| h.t >= r.tmin && h.t <= tmax);
+        }
         (det != 0.0 && t >= r.tmin && t <= tmax).then_some(TriHit {
             t,
             u: v * rcp,
@@ -304,11 +436,21 @@ impl TriTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
+        // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
+        let (t, bu, bv, valid) = in_range8(
+            s,
+            &rel,
+            [sx, sy, sz],
+            inside,
+            t,
+            v * rcp,
+            w * rcp,
+            inside & det.ne(zero),
+        );
         // The decision t (`lift_t`): unchanged but for slivers and hits on a box's plane.
-        let hit = inside & det.ne(zero) & t.ge(r.tmin) & t.le(tmax);
+        let hit = valid & t.ge(r.tmin) & t.le(tmax);
         let t = entry.max(t);
         let hit = hit & t.le(tmax);
-        // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
-        (hit, t, v * rcp, w * rcp)
+        (hit, t, bu, bv)
     }
 }
