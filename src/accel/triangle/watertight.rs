@@ -211,7 +211,7 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
 /// its reciprocal overflows), the lane is decided again by [`rescaled_lane`].
 #[inline(always)]
 fn in_range(t: f32) -> bool {
-    t <= f32::MAX && t >= -f32::MAX
+    t.is_finite()
 }
 
 /// The paper's test on one triangle whose f32 products left f32's range, from its vertices
