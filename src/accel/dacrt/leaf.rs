@@ -170,9 +170,10 @@ impl LeafTest for Watertight {
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
         // Lanes whose products left f32's range, decided again as the scalar test does.
+        // (`rel` is live here anyway: the decision t's entry below reads it.)
         let (t, bu, bv, valid) = in_range8(
             s,
-            &rel,
+            || rel,
             r.shear,
             inside,
             t,

@@ -313,12 +313,15 @@ fn rescaled8<S: Simd>(
 
 /// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` whose
 /// t is not finite decided again by [`rescaled_lane`] (the scalar test's rule, lane for
-/// lane); shared by the layer's 8-triangle test and DACRT's 8-ray leaf test.
+/// lane); shared by the layer's 8-triangle test and DACRT's 8-ray leaf test. `rel` gives
+/// the vertices relative to the origin, asked for only then (a closure rather than a
+/// reference: with a reference, `mbvh8` and `dacrt` ran 3% more instructions by
+/// callgrind; with the closure, within 0.3% of the kernels without this check).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub fn in_range8<S: Simd>(
     s: S,
-    rel: &[[S::F8; 3]; 3],
+    rel: impl FnOnce() -> [[S::F8; 3]; 3],
     shear: [S::F8; 3],
     inside: S::M8,
     t: S::F8,
@@ -326,12 +329,13 @@ pub fn in_range8<S: Simd>(
     bv: S::F8,
     valid: S::M8,
 ) -> (S::F8, S::F8, S::F8, S::M8) {
-    let big = s.splat_f8(f32::MAX);
-    let bad = inside.andnot(t.le(big) & t.ge(-big));
+    // t − t is 0 exactly where t is finite (NaN for ±inf and NaN): one operation fewer
+    // than two bounds, on the kernels' hot path.
+    let bad = inside.andnot((t - t).eq(s.splat_f8(0.0)));
     if bad.none() {
         return (t, bu, bv, valid);
     }
-    rescaled8(s, bad.bitmask(), rel, shear, t, bu, bv, valid)
+    rescaled8(s, bad.bitmask(), &rel(), shear, t, bu, bv, valid)
 }
 
 impl Watertight {
@@ -439,7 +443,7 @@ impl TriTest for Watertight {
         // The scalar test's u, v: the edge functions of v1 and v2 over the determinant.
         let (t, bu, bv, valid) = in_range8(
             s,
-            &rel,
+            || rel,
             [sx, sy, sz],
             inside,
             t,
