@@ -214,6 +214,23 @@ fn in_range(t: f32) -> bool {
     t.is_finite()
 }
 
+/// The edge functions `U, V, W` of one lane from its sheared coordinates across the ray
+/// (`[x, y]` of each vertex), with the paper's f64 fallback where one is exactly 0, if the
+/// ray is inside: all >= 0 or all <= 0 (zeros count both ways), as min/max with the x86
+/// rules, the form the 8-wide test uses (4 fewer vector operations than six compares).
+/// Shared by the scalar test and its rescaled decision, so both decide alike.
+#[inline(always)]
+fn edges_inside([[ax, ay], [bx, by], [cx, cy]]: [[f32; 2]; 3]) -> Option<(f32, f32, f32)> {
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        (u, v, w) = edges_f64(ax, ay, bx, by, cx, cy);
+    }
+    let inside = min_x86(min_x86(u, v), w) >= 0.0 || max_x86(max_x86(u, v), w) <= 0.0;
+    inside.then_some((u, v, w))
+}
+
 /// The paper's test on one triangle whose f32 products left f32's range, from its vertices
 /// relative to the ray origin (`rel[i]` in the ray's order `kx, ky, kz`): the sheared
 /// coordinates are computed as the test computes them, then the six across the ray are
@@ -249,15 +266,9 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
         scale(rel[1][2], -e_z),
         scale(rel[2][2], -e_z),
     );
-    let mut u = cx * by - cy * bx;
-    let mut v = ax * cy - ay * cx;
-    let mut w = bx * ay - by * ax;
-    if u == 0.0 || v == 0.0 || w == 0.0 {
-        (u, v, w) = edges_f64(ax, ay, bx, by, cx, cy);
-    }
-    let inside = min_x86(min_x86(u, v), w) >= 0.0 || max_x86(max_x86(u, v), w) <= 0.0;
+    let (u, v, w) = edges_inside([[ax, ay], [bx, by], [cx, cy]])?;
     let det = u + v + w;
-    if !inside || det == 0.0 {
+    if det == 0.0 {
         return None;
     }
     let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
@@ -346,32 +357,16 @@ impl Watertight {
     pub(super) fn paper_lane(r: &PreparedRay, p: &[[f32; 3]; 3], tmax: f32) -> Option<TriHit> {
         let [kx, ky, kz] = r.k;
         let [sx, sy, sz] = r.shear;
-        let rel = |i: usize, k: usize| p[i][k] - r.org[k];
-        let (a_z, b_z, c_z) = (rel(0, kz), rel(1, kz), rel(2, kz));
-        let ax = rel(0, kx) - sx * a_z;
-        let ay = rel(0, ky) - sy * a_z;
-        let bx = rel(1, kx) - sx * b_z;
-        let by = rel(1, ky) - sy * b_z;
-        let cx = rel(2, kx) - sx * c_z;
-        let cy = rel(2, ky) - sy * c_z;
-        let mut u = cx * by - cy * bx;
-        let mut v = ax * cy - ay * cx;
-        let mut w = bx * ay - by * ax;
-        if u == 0.0 || v == 0.0 || w == 0.0 {
-            (u, v, w) = edges_f64(ax, ay, bx, by, cx, cy);
-        }
-        // All >= 0 or all <= 0 (zeros count both ways): as min/max with the x86 rules, the
-        // form the 8-wide test uses (4 fewer vector operations than six compares).
-        let inside = min_x86(min_x86(u, v), w) >= 0.0 || max_x86(max_x86(u, v), w) <= 0.0;
-        if !inside {
-            return None;
-        }
+        // Vertex minus origin, `rel[i]` in the order kx, ky, kz.
+        let rel = [0, 1, 2].map(|i| [kx, ky, kz].map(|k| p[i][k] - r.org[k]));
+        let (a_z, b_z, c_z) = (rel[0][2], rel[1][2], rel[2][2]);
+        let across = rel.map(|q| [q[0] - sx * q[2], q[1] - sy * q[2]]);
+        let (u, v, w) = edges_inside(across)?;
         let det = u + v + w;
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = 1.0 / det;
         let t = tt * rcp;
         if !in_range(t) {
-            let rel = [0, 1, 2].map(|i| [kx, ky, kz].map(|k| p[i][k] - r.org[k]));
             return rescaled_lane(rel, r.shear).filter(|h| h.t >= r.tmin && h.t <= tmax);
         }
         (det != 0.0 && t >= r.tmin && t <= tmax).then_some(TriHit {
