@@ -815,6 +815,150 @@ fn refused_commands_leave_no_outputs() {
     assert!(!ok && err.contains("--timeout"), "{err}");
 }
 
+/// Render options refused with a message that says what is wrong: an AOV listed twice (as
+/// the service refuses it), a file named only `.png`, and `--frames` whose parts name
+/// themselves, even where their count is past what an integer holds.
+#[test]
+fn render_refusals_name_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let box_ = sample("Box.glb");
+    let out = |name: &str| dir.path().join(name).display().to_string();
+    let small = ["--width", "8", "--height", "6"];
+    for (args, needle) in [
+        (
+            vec![
+                "-o".to_string(),
+                out("a.exr"),
+                "--aov".into(),
+                "depth,normal,depth".into(),
+            ],
+            "--aov: 'depth' is listed twice",
+        ),
+        (
+            vec!["-o".into(), out(".png")],
+            "needs a name before its .png or .exr extension",
+        ),
+        (
+            vec![
+                "-o".into(),
+                out("f-#.png"),
+                "--frames".into(),
+                "0:1:0".into(),
+            ],
+            "frames.step: must be positive",
+        ),
+        (
+            vec![
+                "-o".into(),
+                out("f-#.png"),
+                "--frames".into(),
+                "1:0:1".into(),
+            ],
+            "frames.end: must not be before start",
+        ),
+        (
+            vec![
+                "-o".into(),
+                out("f-#.png"),
+                "--frames".into(),
+                "0:1e300:1e-300".into(),
+            ],
+            "frames.step: makes more than 1.8e308 frames, over the limit",
+        ),
+        (
+            vec![
+                "-o".into(),
+                out("f-#.png"),
+                "--frames".into(),
+                "0:1e12:1e-12".into(),
+            ],
+            "frames.step: makes 1.000e24 frames, over the limit",
+        ),
+    ] {
+        let mut all = vec!["render".to_string(), box_.clone()];
+        all.extend(args);
+        all.extend(small.map(String::from));
+        let all: Vec<&str> = all.iter().map(String::as_str).collect();
+        let (ok, _, err) = rayd(&all);
+        assert!(!ok && err.contains(needle), "{all:?}: {err}");
+    }
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        0,
+        "nothing written"
+    );
+}
+
+/// A name as long as a file name may be (255 bytes) is written, alone or in a sequence:
+/// the staging file beside it takes a shorter name where `.NAME…` would not fit.
+#[test]
+fn outputs_may_have_the_longest_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let long = format!("{}.png", "x".repeat(251));
+    let seq = format!("{}-##.png", "y".repeat(248));
+    let scene = sample("Box.glb");
+    for (name, frames) in [(&long, None), (&seq, Some("0:1:1"))] {
+        let path = dir.path().join(name);
+        let mut args = vec!["render", &scene, "-o", p(&path)];
+        args.extend(["--width", "8", "--height", "6"]);
+        if let Some(f) = frames {
+            args.extend(["--frames", f]);
+        }
+        let (ok, _, err) = rayd(&args);
+        assert!(ok, "{}: {err}", name.len());
+    }
+    let mut names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 3, "no staging file left: {names:?}");
+    assert!(names.iter().all(|n| n.len() == 255), "{names:?}");
+}
+
+/// Ctrl-C during a sequence stops it within a wave, removes the frames it had staged and
+/// exits 130 (128 + SIGINT), as shells expect.
+#[cfg(unix)]
+#[test]
+fn an_interrupted_sequence_leaves_no_files() {
+    use std::time::{Duration, Instant};
+    let dir = tempfile::tempdir().unwrap();
+    let pattern = dir.path().join("walk-##.png");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rayd"))
+        .args(["render", &sample("Fox.glb"), "-o", p(&pattern)])
+        .args(["--width", "320", "--height", "240", "--spp", "256"])
+        .args([
+            "--integrator",
+            "path",
+            "--frames",
+            "0:2:0.1",
+            "--threads",
+            "1",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Until the first frame is staged.
+    let t0 = Instant::now();
+    while std::fs::read_dir(dir.path()).unwrap().count() == 0 {
+        assert!(t0.elapsed() < Duration::from_secs(120), "no frame staged");
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "ended before its first frame"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let pid = child.id().to_string();
+    Command::new("kill").args(["-INT", &pid]).status().unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(err.contains("stopped by SIGINT"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
 /// A `.gltf`'s external buffer is read no further than its `byteLength`: a buffer file
 /// that is a device fed forever (`/dev/zero`) took all memory.
 #[cfg(unix)]

@@ -336,6 +336,34 @@ fn pixels_outside_the_scenes_rectangle_are_the_misses_they_would_trace() {
     }
 }
 
+/// A pixel is the mean of its samples at any radiance f32 holds: a sky of 3e38 seen by 4
+/// samples a pixel (whose f32 sum would be +inf) shows 3e38, traced or filled in as a miss.
+#[test]
+fn the_brightest_sky_is_its_own_mean() {
+    let tris = two_quads();
+    let options = RenderOptions {
+        width: 24,
+        height: 16,
+        spp: 4,
+        integrator: Integrator::Path,
+        sky: [3e38, 1.0, 0.0],
+        ..RenderOptions::default()
+    };
+    let img = render_with(&tris, &options, &look());
+    let misses: Vec<_> = img
+        .pixels
+        .iter()
+        .zip(&img.alpha)
+        .filter(|(_, &a)| a == 0.0)
+        .map(|(p, _)| *p)
+        .collect();
+    assert!(!misses.is_empty());
+    for p in misses {
+        assert_eq!(p, [3e38, 1.0, 0.0]);
+    }
+    assert!(img.pixels.iter().flatten().all(|x| x.is_finite()));
+}
+
 /// Without a camera the view frames the bounds, even for a scene that has cameras.
 #[test]
 fn the_default_view_frames_the_bounds_even_with_scene_cameras() {

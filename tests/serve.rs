@@ -1536,6 +1536,52 @@ fn sigterm_lets_a_running_render_finish_within_the_grace_period() {
     assert_eq!((png.status, &png.body[1..4]), (200, &b"PNG"[..]));
 }
 
+/// A second SIGTERM or SIGINT ends the grace period at once: with `--grace 60` and a render
+/// that would take longer, the server exits within seconds of the second signal, and the
+/// render, left `running` in the store, is queued again at the next start (not lost).
+#[test]
+fn a_second_signal_ends_the_grace_period() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let s = Server::start(&data, &["--grace", "60"]);
+    let id = s.upload_sample("Fox.glb")["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let job = s.submit_render(
+        &id,
+        br#"{"width": 512, "height": 512, "spp": 4096, "integrator": "path"}"#,
+    );
+    wait_running(&s, &job, 30);
+    s.signal("TERM");
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(
+        s.try_request("GET", "/healthz", &[], &[]).is_err(),
+        "no longer accepting after the first signal"
+    );
+    let mut s = s;
+    assert!(
+        s.child.try_wait().unwrap().is_none(),
+        "the first signal waits for the render"
+    );
+    let t0 = Instant::now();
+    s.signal("INT");
+    s.wait_exit();
+    assert!(
+        t0.elapsed() < Duration::from_secs(10),
+        "exited {:?} after the second signal",
+        t0.elapsed()
+    );
+    let s = Server::start(&data, &[]);
+    let j = s.req("GET", &format!("/v1/jobs/{job}"), &[], &[]).json();
+    assert!(
+        j["state"] == "queued" || j["state"] == "running",
+        "queued again: {j}"
+    );
+    let r = s.req("DELETE", &format!("/v1/jobs/{job}"), &[], &[]);
+    assert_eq!(r.status, 200);
+}
+
 /// `POST …/frame`: positions and rays in one request answer what a `PUT` of the positions
 /// and a trace of the new version answer, and what `rayd trace` answers on those triangles;
 /// a frame refused for any reason (its positions or its rays) records no version.

@@ -758,7 +758,7 @@ impl App {
                     Some(t) => Some(
                         shaded
                             .at(t)
-                            .map_err(|e| JobError::Geometry(e.to_string()))?,
+                            .map_err(|e| JobError::Geometry(format!("time {t}: {e}")))?,
                     ),
                     None => None,
                 };

@@ -615,7 +615,7 @@ impl App {
                 .await?
                 .map_err(|e| AppError::BadParameter {
                     field: "time",
-                    detail: e.to_string(),
+                    detail: format!("at {t}: {e}"),
                 })?;
             cameras = Arc::new(pose.cameras);
             Arc::new(pose.triangles)

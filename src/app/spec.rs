@@ -245,12 +245,7 @@ impl RenderSpec {
                 format!("{x} is not a finite radiance of at least 0"),
             ));
         }
-        if let Some(a) = self
-            .aov
-            .iter()
-            .enumerate()
-            .find_map(|(i, a)| self.aov[..i].contains(a).then_some(a))
-        {
+        if let Some(a) = Aov::repeated(&self.aov) {
             return Err(bad("aov", format!("'{a}' is listed twice")));
         }
         let aovs = AovSet::of(&self.aov);
@@ -268,7 +263,10 @@ impl RenderSpec {
                 return Err(bad("frames", "give either frames or time, not both"))
             }
             (Some(f), None) => crate::jobs::render::frame_times(f.start, f.end, f.step, max_frames)
-                .map_err(|e| bad("frames", e.to_string()))?
+                .map_err(|e| match e {
+                    crate::jobs::JobError::Invalid { field, detail } => bad(field, detail),
+                    other => bad("frames", other.to_string()),
+                })?
                 .into_iter()
                 .map(Some)
                 .collect(),

@@ -71,6 +71,16 @@ pub enum CliError {
     /// A trade-off run failed.
     #[error(transparent)]
     Tradeoff(#[from] crate::tradeoff::TradeoffError),
+    /// A signal stopped the command; it exits 128 + the signal's number, as shells expect.
+    #[error("stopped by {name}; {detail}")]
+    Stopped {
+        /// `SIGINT` or `SIGTERM`.
+        name: &'static str,
+        /// The signal's number.
+        number: u8,
+        /// What was left behind (or not).
+        detail: &'static str,
+    },
 }
 
 #[derive(Parser, Debug)]
@@ -129,7 +139,10 @@ pub fn main() -> ExitCode {
         }
         Err(e) => {
             eprintln!("rayd: error: {e}");
-            ExitCode::FAILURE
+            match e {
+                CliError::Stopped { number, .. } => ExitCode::from(128u8.saturating_add(number)),
+                _ => ExitCode::FAILURE,
+            }
         }
     }
 }
@@ -294,6 +307,69 @@ fn write_whole(path: &std::path::Path, bytes: &[u8]) -> std::io::Result<()> {
     staged.commit()
 }
 
+/// SIGINT and SIGTERM turned into a job's cancellation, for a command that must clean up
+/// after itself (a render sequence's staged frames): the first one cancels `token`, so the
+/// work stops at its next step and the command unwinds; a second one ends the process at
+/// once, as a user who presses Ctrl-C twice means.
+struct StopOnSignal {
+    /// The signal that came, by name and number (none yet: `None`).
+    came: std::sync::Arc<std::sync::OnceLock<(&'static str, u8)>>,
+}
+
+impl StopOnSignal {
+    /// Installs the handlers (from then on the signals no longer end the process) and
+    /// starts the thread that waits for them.
+    fn install(token: crate::jobs::CancelToken) -> Result<StopOnSignal, CliError> {
+        let came = std::sync::Arc::new(std::sync::OnceLock::new());
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            let failed =
+                |source| CliError::Usage(format!("cannot install a signal handler: {source}"));
+            let rt = tokio::runtime::Builder::new_current_thread()
+                .enable_all()
+                .build()
+                .map_err(failed)?;
+            let (mut term, mut int) = rt
+                .block_on(async {
+                    Ok::<_, std::io::Error>((
+                        signal(SignalKind::terminate())?,
+                        signal(SignalKind::interrupt())?,
+                    ))
+                })
+                .map_err(failed)?;
+            let seen = std::sync::Arc::clone(&came);
+            std::thread::Builder::new()
+                .name("rayd-signals".into())
+                .spawn(move || {
+                    rt.block_on(async move {
+                        let mut next = async || {
+                            tokio::select! {
+                                _ = int.recv() => ("SIGINT", 2u8),
+                                _ = term.recv() => ("SIGTERM", 15u8),
+                            }
+                        };
+                        let first = next().await;
+                        let _ = seen.set(first);
+                        eprintln!("rayd: {}: stopping (again to stop at once)", first.0);
+                        token.cancel();
+                        let (_, number) = next().await;
+                        std::process::exit(128 + i32::from(number));
+                    })
+                })
+                .map_err(failed)?;
+        }
+        #[cfg(not(unix))]
+        let _ = token;
+        Ok(StopOnSignal { came })
+    }
+
+    /// The signal that came, if one did.
+    fn came(&self) -> Option<(&'static str, u8)> {
+        self.came.get().copied()
+    }
+}
+
 /// Outputs of one command written all or none: each into a temporary file beside its
 /// path, all renamed over their paths only when the command has written every one
 /// ([`Staged::commit`]); dropped uncommitted (an error on the way), the temporary files
@@ -323,13 +399,15 @@ impl Staged {
         let name = path
             .file_name()
             .ok_or_else(|| std::io::Error::other("the path names no file"))?;
-        let mut tmp_name = std::ffi::OsString::from(".");
-        tmp_name.push(name);
-        tmp_name.push(format!(
-            ".rayd-{}-{}.tmp",
-            std::process::id(),
-            self.files.len()
-        ));
+        let suffix = format!(".rayd-{}-{}.tmp", std::process::id(), self.files.len());
+        // `.NAME` + suffix, unless that would pass the 255 bytes a file name may have
+        // (a name the user could create would fail here): then the suffix alone.
+        let mut tmp_name = std::ffi::OsString::new();
+        if 1 + name.len() + suffix.len() <= 255 {
+            tmp_name.push(".");
+            tmp_name.push(name);
+        }
+        tmp_name.push(&suffix);
         let tmp = path.with_file_name(tmp_name);
         if let Err(e) = std::fs::write(&tmp, bytes) {
             let _ = std::fs::remove_file(&tmp);

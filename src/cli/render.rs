@@ -91,11 +91,23 @@ fn parse_frames(s: &str, limit: usize) -> Result<Vec<f64>, CliError> {
 
 pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     let format = ImageFormat::from_path(&a.out).ok_or_else(|| {
-        CliError::Usage(format!(
-            "{}: the output must end in .png or .exr",
-            a.out.display()
-        ))
+        // `.png` alone is a hidden file's name with no extension.
+        let bare = a.out.file_name().and_then(|n| n.to_str()).is_some_and(|n| {
+            let n = n.to_ascii_lowercase();
+            n == ".png" || n == ".exr"
+        });
+        CliError::Usage(if bare {
+            format!(
+                "{}: the output needs a name before its .png or .exr extension",
+                a.out.display()
+            )
+        } else {
+            format!("{}: the output must end in .png or .exr", a.out.display())
+        })
     })?;
+    if let Some(aov) = Aov::repeated(&a.aov) {
+        return Err(CliError::Usage(format!("--aov: '{aov}' is listed twice")));
+    }
     let engine = a.core.engine()?;
     let times: Vec<Option<f64>> = match &a.frames {
         Some(f) => parse_frames(f, engine.limits().max_frames)?
@@ -140,7 +152,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             Some(t) => Some(
                 scene
                     .at(t)
-                    .map_err(|e| crate::jobs::JobError::Geometry(e.to_string()))?,
+                    .map_err(|e| crate::jobs::JobError::Geometry(format!("time {t}: {e}")))?,
             ),
         };
         let s = posed.as_ref().unwrap_or(&scene);
@@ -167,13 +179,20 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
         }
     }
     let mut written = Vec::new();
-    // A sequence's frames appear together once all are made, or none does.
+    // A sequence's frames appear together once all are made, or none does, Ctrl-C
+    // included: a signal cancels the render, and the staged frames go with `staged`.
     let mut staged = super::Staged::default();
+    let cancel = crate::jobs::CancelToken::new();
+    let signals = if sequence {
+        Some(super::StopOnSignal::install(cancel.clone())?)
+    } else {
+        None
+    };
     let report = engine.render(
         &request,
         &times,
         &frame_at,
-        &engine.detached(),
+        &engine.detached_with(cancel),
         &mut |k, bytes| {
             let out = out_of(k);
             let wrote = if sequence {
@@ -193,7 +212,17 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             written.push(out);
             Ok(())
         },
-    )?;
+    );
+    let report = match (report, signals.as_ref().and_then(|s| s.came())) {
+        (Err(crate::jobs::JobError::Cancelled), Some((name, number))) => {
+            return Err(CliError::Stopped {
+                name,
+                number,
+                detail: "no frame was written",
+            })
+        }
+        (r, _) => r?,
+    };
     staged.commit().map_err(|source| FormatError::Io {
         path: pattern.clone(),
         source,

@@ -129,7 +129,10 @@ async fn serve(args: ServeArgs) -> Result<serde_json::Value, CliError> {
         .await
         .unwrap_or_else(|_| std::time::Instant::now());
     let deadline = since + config.grace();
-    while engine.scheduler().running() > 0 && std::time::Instant::now() < deadline {
+    while engine.scheduler().running() > 0
+        && std::time::Instant::now() < deadline
+        && !state.shutdown.is_hurried()
+    {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let unfinished = engine.scheduler().running();

@@ -164,7 +164,7 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
         Some(t) => Some(
             scene
                 .at(t)
-                .map_err(|e| CliError::Usage(format!("{path}: {e}")))?,
+                .map_err(|e| CliError::Usage(format!("{path}: time {t}: {e}")))?,
         ),
     };
     let frame = FrameInput::of_scene(

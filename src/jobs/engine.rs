@@ -215,7 +215,13 @@ impl Engine {
 
     /// Hooks for a job that runs alone, nobody cancelling it (the command line).
     pub fn detached(&self) -> Control {
-        Control::new(Arc::clone(&self.pool), CancelToken::new(), None, None)
+        self.detached_with(CancelToken::new())
+    }
+
+    /// Hooks for a job that runs alone and stops when `cancel` is cancelled (a command
+    /// interrupted by a signal).
+    pub fn detached_with(&self, cancel: CancelToken) -> Control {
+        Control::new(Arc::clone(&self.pool), cancel, None, None)
     }
 
     /// Hooks for a scheduled job.

@@ -423,25 +423,44 @@ impl Engine {
 
 /// The times of `--frames START:END:STEP` (contract §4): START + k·STEP for k = 0 …
 /// ⌊(END − START)/STEP + 1e-9⌋.
+/// Errors name the part at fault (`frames.step`, …), as the request's field paths do.
 pub fn frame_times(start: f64, end: f64, step: f64, limit: usize) -> Result<Vec<f64>, JobError> {
-    let bad = |detail: &str| JobError::Invalid {
-        field: "frames",
+    let bad = |field: &'static str, detail: &str| JobError::Invalid {
+        field,
         detail: detail.to_string(),
     };
-    if !(start.is_finite() && end.is_finite() && step.is_finite()) {
-        return Err(bad("start, end and step must be finite numbers"));
+    for (field, x) in [
+        ("frames.start", start),
+        ("frames.end", end),
+        ("frames.step", step),
+    ] {
+        if !x.is_finite() {
+            return Err(bad(field, "must be a finite number of seconds"));
+        }
     }
     if step <= 0.0 {
-        return Err(bad("step must be positive"));
+        return Err(bad("frames.step", "must be positive"));
     }
     if end < start {
-        return Err(bad("end must not be before start"));
+        return Err(bad("frames.end", "must not be before start"));
     }
     let k = ((end - start) / step + 1e-9).floor();
     if k + 1.0 > limit as f64 {
+        // A count past 2^53 is no longer an integer f64 holds exactly: say how large.
+        if k + 1.0 >= 9_007_199_254_740_992.0 {
+            let count = if k.is_finite() {
+                format!("{:.3e}", k + 1.0)
+            } else {
+                "more than 1.8e308".to_string()
+            };
+            return Err(bad(
+                "frames.step",
+                &format!("makes {count} frames, over the limit of {limit}"),
+            ));
+        }
         return Err(JobError::Limit {
             what: "frames",
-            value: (k + 1.0).min(u64::MAX as f64) as u64,
+            value: (k + 1.0) as u64,
             limit: limit as u64,
         });
     }

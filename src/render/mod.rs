@@ -87,6 +87,14 @@ pub enum Aov {
 impl Aov {
     /// Every AOV.
     pub const ALL: [Aov; 4] = [Aov::Depth, Aov::Normal, Aov::Albedo, Aov::Prim];
+
+    /// The first AOV that `list` names a second time: a request lists each at most once,
+    /// on the command line as in JSON (`uniqueItems`).
+    pub fn repeated(list: &[Aov]) -> Option<Aov> {
+        list.iter()
+            .enumerate()
+            .find_map(|(i, a)| list[..i].contains(a).then_some(*a))
+    }
 }
 
 crate::spelled!(Aov, Aov::ALL);
@@ -376,7 +384,9 @@ pub fn render<W: Waves + ?Sized>(
     };
     // Pixels outside it see what a miss sees, without a ray (`render_wave`).
     let visible = bounds.map_or(PixelRect::full(w, h), |b| camera.pixel_rect(b, w, h));
-    let mut sum = vec![[0.0f32; 3]; n];
+    // Sums in f64: a pixel's mean is then its samples' mean even where their f32 sum
+    // would overflow (a sky of 3e38 over 4 samples).
+    let mut sum = vec![[0.0f64; 3]; n];
     // On the pool as well: outside a wave, rayon would use its global pool, whose threads
     // (one per core) `--threads` does not bound.
     waves.run_wave(&mut || fill_misses(&mut sum, visible, w as usize, options))?;
@@ -454,8 +464,11 @@ pub fn render<W: Waves + ?Sized>(
         });
         start = end;
     }
+    let pixels = sum
+        .into_iter()
+        .map(|c| c.map(|x| (x / f64::from(spp)) as f32))
+        .collect();
     let inv = 1.0 / spp as f32;
-    let pixels = sum.into_iter().map(|c| c.map(|x| x * inv)).collect();
     let alpha = covered.into_iter().map(|k| k as f32 * inv).collect();
     let a = options.aovs;
     let keep = |on: bool| on.then_some(&primary);
@@ -480,7 +493,7 @@ pub fn render<W: Waves + ?Sized>(
 /// Where one wave accumulates: its pixels' slices of the frame's buffers.
 struct WaveOut<'a> {
     /// Sums of the samples' radiance.
-    radiance: &'a mut [[f32; 3]],
+    radiance: &'a mut [[f64; 3]],
     /// Samples whose camera ray hit.
     covered: &'a mut [u32],
     /// The primary hits, on sample 0 when AOVs are asked for.
@@ -1040,7 +1053,7 @@ const _: () = assert!(
 fn trace_paths(
     frame: Frame<'_>,
     live: &mut Paths,
-    out: &mut [[f32; 3]],
+    out: &mut [[f64; 3]],
     steps: &mut Vec<Step>,
     bufs: &mut TraceBufs,
     shadows: &mut Shadows,
@@ -1255,12 +1268,12 @@ fn shade_vertex(
 /// `path`, the background otherwise, added one sample at a time as a traced miss adds it, so
 /// the image is bit for bit the one that tracing them would give. Done once, in parallel,
 /// instead of in every wave.
-fn fill_misses(sum: &mut [[f32; 3]], visible: PixelRect, w: usize, options: &RenderOptions) {
+fn fill_misses(sum: &mut [[f64; 3]], visible: PixelRect, w: usize, options: &RenderOptions) {
     let miss = match options.integrator {
         Integrator::Path => options.sky,
         _ => BACKGROUND,
     };
-    let mut total = [0.0f32; 3];
+    let mut total = [0.0f64; 3];
     for _ in 0..options.spp.max(1) {
         add(&mut total, miss, 1.0);
     }
@@ -1275,8 +1288,8 @@ fn fill_misses(sum: &mut [[f32; 3]], visible: PixelRect, w: usize, options: &Ren
 }
 
 #[inline]
-fn add(o: &mut [f32; 3], c: [f32; 3], k: f32) {
+fn add(o: &mut [f64; 3], c: [f32; 3], k: f32) {
     for j in 0..3 {
-        o[j] += c[j] * k;
+        o[j] += f64::from(c[j] * k);
     }
 }

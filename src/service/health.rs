@@ -71,29 +71,50 @@ impl Ready {
 }
 
 /// The shutdown signal: triggered once on SIGTERM/SIGINT (or by a test); everything
-/// long-lived selects on [`Shutdown::cancelled`].
+/// long-lived selects on [`Shutdown::cancelled`]. A second signal during the grace period
+/// ends it at once ([`Shutdown::hurry`]), as an operator who presses Ctrl-C twice means.
 #[derive(Debug, Clone, Default)]
-pub struct Shutdown(CancellationToken);
+pub struct Shutdown {
+    started: CancellationToken,
+    hurried: CancellationToken,
+}
 
 impl Shutdown {
     /// Starts the shutdown (idempotent).
     pub fn trigger(&self) {
-        self.0.cancel();
+        self.started.cancel();
+    }
+
+    /// Ends the grace period now: open connections are abandoned and running jobs left to
+    /// run again at the next start, as when `--grace` runs out. Starts the shutdown too.
+    pub fn hurry(&self) {
+        self.started.cancel();
+        self.hurried.cancel();
     }
 
     /// Whether the shutdown has started.
     pub fn is_triggered(&self) -> bool {
-        self.0.is_cancelled()
+        self.started.is_cancelled()
+    }
+
+    /// Whether the grace period was cut short.
+    pub fn is_hurried(&self) -> bool {
+        self.hurried.is_cancelled()
     }
 
     /// Completes when the shutdown starts.
     pub async fn cancelled(&self) {
-        self.0.cancelled().await;
+        self.started.cancelled().await;
+    }
+
+    /// Completes when the grace period is cut short.
+    pub async fn hurried(&self) {
+        self.hurried.cancelled().await;
     }
 
     /// The underlying token, for code that composes tokens (child tokens per job).
     pub fn token(&self) -> &CancellationToken {
-        &self.0
+        &self.started
     }
 }
 
@@ -128,25 +149,65 @@ pub async fn refuse_while_starting(
     next.run(req).await
 }
 
-/// Waits for SIGTERM or SIGINT, then marks the service draining and triggers `shutdown`.
-/// Returns at once (spawning the waiter) so the caller can go on to serve.
+/// Waits for SIGTERM or SIGINT, then marks the service draining and triggers `shutdown`;
+/// a second one ends the grace period at once ([`Shutdown::hurry`]). Returns at once
+/// (spawning the waiter) so the caller can go on to serve.
 pub fn shutdown_on_signals(ready: Ready, shutdown: Shutdown) -> std::io::Result<()> {
-    #[cfg(unix)]
-    let mut term = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    let mut signals = Signals::new()?;
     tokio::spawn(async move {
-        #[cfg(unix)]
-        let terminate = async {
-            term.recv().await;
-        };
-        #[cfg(not(unix))]
-        let terminate = std::future::pending::<()>();
         tokio::select! {
-            _ = tokio::signal::ctrl_c() => tracing::info!("SIGINT: shutting down"),
-            () = terminate => tracing::info!("SIGTERM: shutting down"),
+            name = signals.next() => tracing::info!(signal = name, "shutting down"),
             () = shutdown.cancelled() => {}
         }
         ready.set_draining();
         shutdown.trigger();
+        tokio::select! {
+            name = signals.next() => {
+                tracing::warn!(signal = name, "second signal: ending the grace period now");
+                shutdown.hurry();
+            }
+            () = shutdown.hurried() => {}
+        }
     });
     Ok(())
+}
+
+/// The signals that stop the service: SIGTERM and SIGINT (Ctrl-C elsewhere).
+struct Signals {
+    #[cfg(unix)]
+    term: tokio::signal::unix::Signal,
+    #[cfg(unix)]
+    int: tokio::signal::unix::Signal,
+}
+
+impl Signals {
+    /// Installs the handlers: from now on these signals no longer end the process.
+    fn new() -> std::io::Result<Signals> {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{signal, SignalKind};
+            Ok(Signals {
+                term: signal(SignalKind::terminate())?,
+                int: signal(SignalKind::interrupt())?,
+            })
+        }
+        #[cfg(not(unix))]
+        Ok(Signals {})
+    }
+
+    /// The next one to arrive, by name.
+    async fn next(&mut self) -> &'static str {
+        #[cfg(unix)]
+        {
+            tokio::select! {
+                _ = self.term.recv() => "SIGTERM",
+                _ = self.int.recv() => "SIGINT",
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = tokio::signal::ctrl_c().await;
+            "SIGINT"
+        }
+    }
 }

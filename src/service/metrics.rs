@@ -256,7 +256,7 @@ impl Metrics {
                 IntCounterVec::new(
                     Opts::new(
                         "requests_refused_total",
-                        "Requests answered 503 before their work began, by reason (body_budget, client_limit, queue_full, shutting_down, starting).",
+                        "Requests answered 503 before their work began (a frame refused for its rays has made its version), by reason (body_budget, client_limit, queue_full, shutting_down, starting).",
                     ),
                     &["reason"],
                 )?,

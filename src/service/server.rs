@@ -163,10 +163,18 @@ pub async fn serve(
     );
     tokio::select! {
         () = graceful.shutdown() => Ok(Stopped { drained: true, abandoned: 0 }),
-        () = tokio::time::sleep(options.grace) => {
+        () = grace_over(options.grace, &shutdown) => {
             let abandoned = options.max_connections.max(1) - slots.available_permits();
             tracing::warn!(connections = abandoned, "grace period over; abandoning connections");
             Ok(Stopped { drained: false, abandoned })
         }
+    }
+}
+
+/// Completes when the grace period ends: after `grace`, or at once on a second signal.
+async fn grace_over(grace: Duration, shutdown: &Shutdown) {
+    tokio::select! {
+        () = tokio::time::sleep(grace) => {}
+        () = shutdown.hurried() => {}
     }
 }

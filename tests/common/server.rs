@@ -37,11 +37,17 @@ impl Server {
         } else {
             &["--threads", "2"]
         };
+        // Two seconds of grace unless `extra` names its own.
+        let grace: &[&str] = if extra.contains(&"--grace") {
+            &[]
+        } else {
+            &["--grace", "2"]
+        };
         let child = Command::new(BIN)
             .args(["serve", "--addr", &addr, "--data-dir"])
             .arg(data)
             .args(threads)
-            .args(["--grace", "2"])
+            .args(grace)
             .args(extra)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
@@ -111,9 +117,22 @@ impl Server {
         self.child.wait().unwrap();
     }
 
-    pub fn stop(mut self) {
+    pub fn stop(self) {
+        self.signal("TERM");
+        self.wait_exit();
+    }
+
+    /// Sends signal `name` (`TERM`, `INT`, …) to the server.
+    pub fn signal(&self, name: &str) {
         let pid = self.child.id().to_string();
-        Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+        Command::new("kill")
+            .args([&format!("-{name}"), &pid])
+            .status()
+            .unwrap();
+    }
+
+    /// Waits at most 15 s for the server to exit (after a signal).
+    pub fn wait_exit(mut self) {
         let t0 = Instant::now();
         loop {
             if self.child.try_wait().unwrap().is_some() {

@@ -31,6 +31,9 @@ from .errors import FormatError, JobError, ProblemError
 from .formats import HIT_FORMATS, MISS_PRIM
 from .spawn import triangle_normals
 
+# Seconds between the keep-alive comments of the server's event streams.
+_KEEP_ALIVE_SECONDS = 15
+
 _FINAL = ("succeeded", "failed", "cancelled")
 _MEDIA = {
     ".glb": "model/gltf-binary",
@@ -197,8 +200,11 @@ class Client:
         timeout=None,
         replay: bool | None = None,
         done_on_replay: tuple = (),
+        retry: bool = True,
     ) -> requests.Response:
-        """Sends one request, retrying a 503 with ``Retry-After``.
+        """Sends one request, retrying a 503 with ``Retry-After`` (unless ``retry`` is
+        False, or the refusal names a ``version``: a frame refused for its rays has made
+        its version already, and sending it again would make another).
 
         ``replay`` says whether the request may be sent again when its connection closed
         before any answer (a pooled connection the server closed at its idle timeout);
@@ -237,7 +243,8 @@ class Client:
                 return resp
             err = ProblemError.from_response(resp)
             resp.close()
-            if resp.status_code == 503 and err.retry_after is not None and attempt < self.retries:
+            if (retry and resp.status_code == 503 and err.retry_after is not None
+                    and "version" not in err.extras and attempt < self.retries):
                 attempt += 1
                 _time.sleep(min(max(err.retry_after, 0.05), 30.0))
                 continue
@@ -253,6 +260,12 @@ class Client:
         resp = self._request(method, path, headers=headers, stream=True, **kw)
         try:
             body = resp.raw.read(decode_content=True)
+        except urllib3.exceptions.HTTPError as e:
+            # A body cut off half-way (the server went away) comes from urllib3 itself;
+            # raise it as requests raises every other transport failure.
+            raise requests.exceptions.ChunkedEncodingError(
+                f"{method} {path}: the response ended early: {e}", response=resp
+            ) from e
         finally:
             resp.raw.release_conn()
         return resp, body
@@ -624,7 +637,14 @@ class Scene:
         tri = formats.encode_triangles(triangles)
         rays = formats.encode_rays(origins, directions, tmin, tmax)
         generation = self.info.get("created_at")  # seen before the version is made
-        hits = self._trace_body(tri + rays, (len(rays) - 16) // 32, params, "frame", FRAME_MEDIA)
+        try:
+            hits = self._trace_body(
+                tri + rays, (len(rays) - 16) // 32, params, "frame", FRAME_MEDIA)
+        except ProblemError as e:
+            # Refused for its rays: the positions are a version all the same.
+            if isinstance(e.extras.get("version"), int):
+                self._made_version(e.extras["version"], tri, generation)
+            raise
         self._made_version(hits.version, tri, generation)
         return hits
 
@@ -752,18 +772,28 @@ class Job:
         A stream that cannot be opened, breaks off (the server going away) or stays
         silent until the deadline just ends: :meth:`wait` polls after it, and decides
         there whether the deadline has passed."""
-        read_timeout = None if deadline is None else max(deadline - _time.monotonic(), 0.1)
+        # The server sends a keep-alive comment every 15 s: a stream silent for twice that
+        # (or the client's timeout, if longer) is a server that hangs, and ends here.
+        silent = max(self.client.timeout or 0, 2 * _KEEP_ALIVE_SECONDS)
+        read_timeout = silent if deadline is None else max(
+            min(deadline - _time.monotonic(), silent), 0.1)
         try:
             resp = self.client._request(
                 "GET", f"{self._path}/events", stream=True,
                 headers={"Accept": "text/event-stream"},
                 # Connecting counts against the deadline too: a server whose listen queue
                 # is full hangs the connect, not the read.
-                timeout=(self.client.timeout if read_timeout is None
+                timeout=(self.client.timeout if deadline is None
                          else min(self.client.timeout, read_timeout), read_timeout),
+                # A 503 (busy, starting) is ridden out by polling, within the deadline.
+                retry=False,
             )
         except (requests.ConnectionError, requests.Timeout):
             return
+        except ProblemError as e:
+            if e.status == 503:
+                return
+            raise
         try:
             buf = b""
             data = []
