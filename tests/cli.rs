@@ -959,6 +959,161 @@ fn an_interrupted_sequence_leaves_no_files() {
     assert!(left.is_empty(), "{left:?}");
 }
 
+/// `healthcheck` passes on a whole 200 answer only: a server that stalls after its status
+/// line, or closes inside its head or body, fails the probe; a URL that could not be sent
+/// as it is (a line break, a space), names credentials or a port out of range is refused.
+#[test]
+fn healthcheck_wants_a_whole_answer_and_a_sendable_url() {
+    use std::io::{Read, Write};
+    use std::net::TcpListener;
+    // Answers each connection with the next canned reply, then closes it (or holds it open
+    // for 5 s after a reply marked to stall).
+    let replies: Vec<(&'static [u8], bool)> = vec![
+        (b"HTTP/1.1 200 OK\r\nContent-Length: 2\r\n\r\nok", false),
+        (b"HTTP/1.1 200 OK\r\nContent-Length: 2", true),
+        (b"HTTP/1.1 200 OK\r\nContent-Le", false),
+        (b"HTTP/1.1 200 OK\r\nContent-Length: 10\r\n\r\nok", false),
+    ];
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    let server = std::thread::spawn(move || {
+        for (reply, stall) in replies {
+            let (mut c, _) = listener.accept().unwrap();
+            let mut head = Vec::new();
+            let mut b = [0u8; 1024];
+            while !head.windows(4).any(|w| w == b"\r\n\r\n") {
+                let n = c.read(&mut b).unwrap();
+                assert!(n > 0);
+                head.extend_from_slice(&b[..n]);
+            }
+            let text = String::from_utf8_lossy(&head).into_owned();
+            assert!(text.starts_with("GET /healthz?x=1 HTTP/1.1\r\n"), "{text}");
+            c.write_all(reply).unwrap();
+            if stall {
+                // Held open, unanswered, beside the next connections.
+                std::thread::spawn(move || {
+                    std::thread::sleep(std::time::Duration::from_secs(5));
+                    drop(c);
+                });
+            }
+        }
+    });
+    let url = format!("http://{addr}/healthz?x=1#frag");
+    let probe = |url: &str| rayd(&["healthcheck", "--url", url, "--timeout", "2"]);
+    let (ok, j, err) = probe(&url);
+    assert!(ok, "{err}");
+    assert_eq!(j["status"], 200);
+    for needle in [
+        "the answer stopped",
+        "closed inside the answer's head",
+        "the body ends after 2 of its 10 bytes",
+    ] {
+        let (ok, _, err) = probe(&url);
+        assert!(!ok && err.contains(needle), "{needle}: {err}");
+    }
+    server.join().unwrap();
+    for (url, needle) in [
+        (format!("http://{addr}/a\r\nX-Evil: 1"), "cannot be sent"),
+        (format!("http://{addr}/a b"), "cannot be sent"),
+        ("http://user:pw@127.0.0.1:1/".to_string(), "credentials"),
+        (
+            "http://127.0.0.1:99999/healthz".to_string(),
+            "not a port number",
+        ),
+    ] {
+        let (ok, _, err) = probe(&url);
+        assert!(!ok && err.contains(needle), "{url:?}: {err}");
+    }
+}
+
+/// `bench` refuses what it would silently ignore or overwrite, and measures a repeated
+/// accelerator once; `tradeoff` refuses `auto`, whose pick would change along its ladder.
+#[test]
+fn bench_and_tradeoff_refuse_what_they_would_ignore() {
+    let dir = tempfile::tempdir().unwrap();
+    let a = dir.path().join("a");
+    let b = dir.path().join("b");
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    std::fs::copy(sample("Box.glb"), a.join("S.glb")).unwrap();
+    std::fs::copy(sample("Fox.glb"), b.join("S.glb")).unwrap();
+    let dump = dir.path().join("dump");
+    let small = [
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--runs",
+        "1",
+        "--threads",
+        "1",
+    ];
+    let cases: Vec<(Vec<String>, &str)> = vec![
+        (
+            vec![
+                p(&a.join("S.glb")).into(),
+                p(&b.join("S.glb")).into(),
+                "--dump".into(),
+                p(&dump).into(),
+            ],
+            "would write the same files",
+        ),
+        (
+            vec![
+                sample("Fox.glb"),
+                "--frames".into(),
+                "2".into(),
+                "--dump".into(),
+                p(&dump).into(),
+            ],
+            "--dump is not available with --frames",
+        ),
+        (
+            vec![
+                sample("Fox.glb"),
+                "--frames".into(),
+                "2".into(),
+                "--time".into(),
+                "1".into(),
+            ],
+            "--time is not available with --frames",
+        ),
+        (
+            vec![sample("Fox.glb"), "--motion".into(), "twist".into()],
+            "--motion needs --frames",
+        ),
+    ];
+    for (args, needle) in cases {
+        let mut all = vec!["bench".to_string()];
+        all.extend(args);
+        all.extend(small.map(String::from));
+        let all: Vec<&str> = all.iter().map(String::as_str).collect();
+        let (ok, _, err) = rayd(&all);
+        assert!(!ok && err.contains(needle), "{all:?}: {err}");
+    }
+    assert!(!dump.exists());
+    let scene = sample("Box.glb");
+    let mut args = vec![
+        "bench",
+        &scene,
+        "--accel",
+        "mbvh8,mbvh8",
+        "--sets",
+        "primary",
+    ];
+    args.extend(small);
+    let (ok, j, err) = rayd(&args);
+    assert!(ok, "{err}");
+    let results = j["scenes"][0]["results"].as_array().unwrap();
+    assert_eq!(results.len(), 1, "{j}");
+    for accel in [["--accel", "auto"], ["--accels", "mbvh8,auto"]] {
+        let out = dir.path().join("t");
+        let (ok, _, err) = rayd(&["tradeoff", &scene, "-o", p(&out), accel[0], accel[1]]);
+        assert!(!ok && err.contains("not auto"), "{err}");
+        assert!(!out.exists());
+    }
+}
+
 /// A `.gltf`'s external buffer is read no further than its `byteLength`: a buffer file
 /// that is a device fed forever (`/dev/zero`) took all memory.
 #[cfg(unix)]

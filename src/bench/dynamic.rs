@@ -318,9 +318,12 @@ fn frames_of(
         }
         return Ok((out, format!("animation, {n} frames over {duration:.3} s")));
     }
-    let b = scene
-        .bounds()
-        .ok_or_else(|| BenchError::Config("the scene has no triangles to benchmark".into()))?;
+    let b = scene.bounds().ok_or_else(|| {
+        BenchError::Config(format!(
+            "{}: the scene has no triangles to benchmark",
+            path.display()
+        ))
+    })?;
     let c = b.center();
     let height = b.max[1] - b.min[1];
     let out = (0..n)
@@ -440,9 +443,10 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
         let (frames, motion) = frames_of(path, &scene, config.motion, config.frames)?;
         let bounds = bounds_of(&frames);
         if bounds.is_empty() {
-            return Err(BenchError::Config(
-                "the scene has no triangles to benchmark".into(),
-            ));
+            return Err(BenchError::Config(format!(
+                "{}: the scene has no triangles to benchmark",
+                path.display()
+            )));
         }
         eprintln!(
             "bench: {} ({} triangles), {motion}",

@@ -55,6 +55,16 @@ pub enum BenchError {
     },
 }
 
+impl BenchError {
+    /// The error, its message prefixed with the scene it concerns where it names none.
+    fn of_scene(self, path: &std::path::Path) -> BenchError {
+        match self {
+            BenchError::Config(m) => BenchError::Config(format!("{}: {m}", path.display())),
+            e => e,
+        }
+    }
+}
+
 /// What to measure.
 #[derive(Clone, Debug)]
 pub struct BenchConfig {
@@ -345,6 +355,22 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
             return Err(crate::accel::AccelError::Unavailable(k.name()).into());
         }
     }
+    // Dumps are named for the scene file's stem: two scenes of one stem would overwrite
+    // each other's.
+    if config.dump.is_some() {
+        for (i, a) in config.scenes.iter().enumerate() {
+            if let Some(b) = config.scenes[..i]
+                .iter()
+                .find(|b| b.file_stem() == a.file_stem())
+            {
+                return Err(BenchError::Config(format!(
+                    "--dump: {} and {} would write the same files (their names share a stem)",
+                    b.display(),
+                    a.display()
+                )));
+            }
+        }
+    }
     let mut report = BenchReport {
         cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
         simd: crate::simd::selected().name().into(),
@@ -366,7 +392,8 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 &config.camera,
                 config.width,
                 config.height,
-            )?;
+            )
+            .map_err(|e| e.of_scene(path))?;
             let rays_per_set = config.width as usize * config.height as usize;
             let reference = match config.reference {
                 AccelKind::Auto => auto_reference(view.triangles.len(), rays_per_set),

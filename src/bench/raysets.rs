@@ -202,6 +202,12 @@ pub fn dump(
         path: path.display().to_string(),
         source,
     };
+    if dir.exists() && !dir.is_dir() {
+        return Err(BenchError::Config(format!(
+            "--dump {}: exists and is not a directory",
+            dir.display()
+        )));
+    }
     std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
     let stem = scene
         .file_stem()

@@ -56,9 +56,10 @@ pub(super) struct BenchArgs {
     /// preparation (rebuild, refit or DACRT's precompute) and trace.
     #[arg(long)]
     frames: Option<usize>,
-    /// With --frames: how the geometry moves (auto: the scene's animation, else twist).
-    #[arg(long, default_value = "auto", value_parser = parse_motion)]
-    motion: Motion,
+    /// With --frames: how the geometry moves (auto, the default: the scene's animation,
+    /// else twist).
+    #[arg(long, value_parser = parse_motion)]
+    motion: Option<Motion>,
     /// With --frames: rays per frame, comma-separated (each a square image of about that
     /// many pixels).
     #[arg(long, value_delimiter = ',', default_value = "262144,1048576")]
@@ -82,7 +83,22 @@ fn parse_view(s: &str) -> Result<ViewKind, String> {
     ViewKind::parse(s).ok_or_else(|| format!("unknown view '{s}' (interior or exterior)"))
 }
 
-pub(super) fn run(a: BenchArgs) -> Result<serde_json::Value, CliError> {
+pub(super) fn run(mut a: BenchArgs) -> Result<serde_json::Value, CliError> {
+    // A repeated accelerator or thread count would be measured twice under one row.
+    unique(&mut a.accel);
+    unique(&mut a.threads);
+    // Options of one mode that the other would silently ignore.
+    let ignored = match a.frames {
+        Some(_) => [("--dump", a.dump.is_some()), ("--time", a.time.is_some())],
+        None => [("--motion", a.motion.is_some()), ("", false)],
+    };
+    if let Some((flag, _)) = ignored.iter().find(|(_, given)| *given) {
+        return Err(CliError::Usage(if a.frames.is_some() {
+            format!("{flag} is not available with --frames")
+        } else {
+            format!("{flag} needs --frames")
+        }));
+    }
     if let Some(frames) = a.frames {
         return run_dynamic(a, frames);
     }
@@ -128,7 +144,7 @@ fn run_dynamic(a: BenchArgs, frames: usize) -> Result<serde_json::Value, CliErro
         sets: a.sets,
         rays_per_frame: a.rays_per_frame,
         frames,
-        motion: a.motion,
+        motion: a.motion.unwrap_or(Motion::Auto),
         threads: a.threads,
         camera: a.camera.choice(),
         build: a.build,
@@ -150,4 +166,16 @@ fn run_dynamic(a: BenchArgs, frames: usize) -> Result<serde_json::Value, CliErro
             Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)
         }
     }
+}
+
+/// Keeps the first of each value, in order.
+fn unique<T: PartialEq + Copy>(v: &mut Vec<T>) {
+    let mut seen = Vec::with_capacity(v.len());
+    v.retain(|x| {
+        let new = !seen.contains(x);
+        if new {
+            seen.push(*x);
+        }
+        new
+    });
 }

@@ -284,30 +284,52 @@ pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliEr
         )));
     }
     let timeout = Duration::from_secs_f64(a.timeout);
+    // Written into the request line as it is: nothing that could end the line or the
+    // head, or split the target.
+    if let Some(c) = a.url.chars().find(|c| !c.is_ascii_graphic()) {
+        return Err(usage(format!(
+            "--url {:?}: {c:?} cannot be sent (percent-encode it)",
+            a.url
+        )));
+    }
     let rest = a
         .url
         .strip_prefix("http://")
         .ok_or_else(|| usage(format!("--url {}: only http:// URLs can be probed", a.url)))?;
+    // A fragment is the client's own, never sent.
+    let rest = rest.split_once('#').map_or(rest, |(r, _)| r);
     // The authority ends at the path, or at a query with no path (`http://h:8080?x`).
     let (authority, path) = match rest.find(['/', '?']) {
         Some(i) if rest[i..].starts_with('?') => (&rest[..i], format!("/{}", &rest[i..])),
         Some(i) => (&rest[..i], rest[i..].to_owned()),
         None => (rest, "/".to_owned()),
     };
-    if authority.is_empty() || authority.contains('@') {
+    if authority.contains('@') {
+        return Err(usage(format!(
+            "--url {}: credentials in the URL are not supported",
+            a.url
+        )));
+    }
+    if authority.is_empty() {
         return Err(usage(format!(
             "--url {}: no host[:port] after http://",
             a.url
         )));
     }
-    let target = if authority
-        .rsplit_once(':')
-        .is_some_and(|(_, p)| p.parse::<u16>().is_ok())
-        && !authority.ends_with(']')
-    {
-        authority.to_owned()
-    } else {
-        format!("{authority}:80")
+    // `host:port` or `[v6]:port`; a colon inside brackets is the address's own.
+    let port = match authority.rsplit_once(':') {
+        Some((_, p)) if !p.ends_with(']') => Some(p),
+        _ => None,
+    };
+    let target = match port {
+        Some(p) if p.parse::<u16>().is_ok_and(|n| n > 0) => authority.to_owned(),
+        Some(p) => {
+            return Err(usage(format!(
+                "--url {}: port {p:?} is not a port number (1 to 65535)",
+                a.url
+            )))
+        }
+        None => format!("{authority}:80"),
     };
     let fail = |what: String| CliError::Usage(format!("healthcheck {}: {what}", a.url));
     let start = Instant::now();
@@ -346,27 +368,75 @@ pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliEr
             )
         })
         .map_err(|e| fail(format!("cannot send the request: {e}")))?;
-    // Only the status line matters; read until it is complete.
-    let mut head = Vec::new();
-    let mut buf = [0u8; 512];
-    while !head.contains(&b'\n') && head.len() < 4096 {
+    // The whole answer within the timeout: the head to its blank line, then the body its
+    // Content-Length announces (a health answer is small: a head past 64 KiB, or a body
+    // past 1 MiB, is no health answer). A server that stalls after its status line, or
+    // closes half-way, fails the probe.
+    let mut answer = Vec::new();
+    let mut buf = [0u8; 4096];
+    let mut read_more = |answer: &mut Vec<u8>| -> Result<bool, CliError> {
         stream
             .set_read_timeout(Some(left(start)))
             .map_err(|e| fail(e.to_string()))?;
         match stream.read(&mut buf) {
-            Ok(0) => break,
-            Ok(n) => head.extend_from_slice(&buf[..n]),
-            Err(e) => return Err(fail(format!("no answer: {e}"))),
+            Ok(0) => Ok(false),
+            Ok(n) => {
+                answer.extend_from_slice(&buf[..n]);
+                Ok(true)
+            }
+            Err(e) if answer.is_empty() => Err(fail(format!("no answer: {e}"))),
+            Err(e) => Err(fail(format!("the answer stopped: {e}"))),
+        }
+    };
+    let head_end = loop {
+        if let Some(i) = answer.windows(4).position(|w| w == b"\r\n\r\n") {
+            break i + 4;
+        }
+        if answer.len() > MAX_PROBE_HEAD {
+            return Err(fail("the answer's head is too long".into()));
+        }
+        if !read_more(&mut answer)? {
+            let text = String::from_utf8_lossy(&answer);
+            let line = text.lines().next().unwrap_or("");
+            return Err(fail(if status_code(line).is_some() {
+                "the connection closed inside the answer's head".into()
+            } else {
+                format!("not an HTTP answer: {line:?}")
+            }));
+        }
+    };
+    let head = String::from_utf8_lossy(&answer[..head_end]).into_owned();
+    let line = head.lines().next().unwrap_or("");
+    let status = status_code(line).ok_or_else(|| fail(format!("not an HTTP answer: {line:?}")))?;
+    let length = head.lines().skip(1).find_map(|l| {
+        let (name, value) = l.split_once(':')?;
+        name.trim()
+            .eq_ignore_ascii_case("content-length")
+            .then(|| value.trim().parse::<u64>().ok())?
+    });
+    if let Some(n) = length {
+        if n > MAX_PROBE_BODY {
+            return Err(fail(format!("a body of {n} bytes is no health answer")));
+        }
+        while ((answer.len() - head_end) as u64) < n {
+            if !read_more(&mut answer)? {
+                return Err(fail(format!(
+                    "the body ends after {} of its {n} bytes",
+                    answer.len() - head_end
+                )));
+            }
         }
     }
-    let line = String::from_utf8_lossy(&head);
-    let line = line.lines().next().unwrap_or("");
-    let status = status_code(line).ok_or_else(|| fail(format!("not an HTTP answer: {line:?}")))?;
     if status != 200 {
         return Err(fail(format!("answered {status}, not 200")));
     }
     Ok(json!({ "url": a.url, "status": status }))
 }
+
+/// The longest answer head a probe reads.
+const MAX_PROBE_HEAD: usize = 64 * 1024;
+/// The longest answer body a probe reads.
+const MAX_PROBE_BODY: u64 = 1 << 20;
 
 #[cfg(test)]
 mod tests {

@@ -116,6 +116,15 @@ fn write_all(dir: &std::path::Path, files: [(&str, &[u8]); 3]) -> Result<[String
 
 pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
     super::load_options(a.time)?;
+    // `auto` picks per frame: as the base, its pick would change along the ladder (and the
+    // build axis would walk a core with no build); as a rung, it repeats a named one.
+    if a.accel == AccelKind::Auto || a.accels.contains(&AccelKind::Auto) {
+        return Err(CliError::Usage(
+            "--accel/--accels: the trade-off compares named accelerators, not auto \
+             (its pick would change along the ladder)"
+                .into(),
+        ));
+    }
     let mut setup = Setup::new(RenderRequest {
         width: a.width,
         height: a.height,

@@ -480,9 +480,32 @@ mod tests {
         assert!(frame_times(0.0, 1.0, 0.0, 100).is_err());
         assert!(frame_times(1.0, 0.0, 0.1, 100).is_err());
         assert!(matches!(
-            frame_times(0.0, 1e9, 1e-9, 100),
-            Err(JobError::Limit { what: "frames", .. })
+            frame_times(0.0, 1e6, 1.0, 100),
+            Err(JobError::Limit {
+                what: "frames",
+                value: 1_000_001,
+                ..
+            })
         ));
+        // Past 2^53 a count is no integer to print: the step is at fault, and says how many.
+        match frame_times(0.0, 1e9, 1e-9, 100) {
+            Err(JobError::Invalid { field, detail }) => {
+                assert_eq!(field, "frames.step");
+                assert!(detail.contains("1.000e18 frames"), "{detail}");
+            }
+            other => panic!("{other:?}"),
+        }
+        for (args, field) in [
+            ((f64::NAN, 1.0, 1.0), "frames.start"),
+            ((0.0, f64::INFINITY, 1.0), "frames.end"),
+            ((0.0, 1.0, -1.0), "frames.step"),
+            ((2.0, 1.0, 1.0), "frames.end"),
+        ] {
+            match frame_times(args.0, args.1, args.2, 100) {
+                Err(JobError::Invalid { field: f, .. }) => assert_eq!(f, field, "{args:?}"),
+                other => panic!("{args:?}: {other:?}"),
+            }
+        }
     }
 
     #[test]

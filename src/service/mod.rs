@@ -251,10 +251,30 @@ pub fn router(state: AppState, v1: Routes) -> Router {
         .layer(
             TraceLayer::new_for_http()
                 .make_span_with(request_id::make_span)
-                .on_response(DefaultOnResponse::new().level(tracing::Level::INFO)),
+                .on_response(DefaultOnResponse::new().level(tracing::Level::INFO))
+                .on_failure(log_failure),
         )
         .layer(from_fn(request_id::request_id_layer))
         .with_state(state)
+}
+
+/// Logs a response that failed: a 503 (a full queue, a busy client, a shutdown: refusals
+/// the API documents, which clients retry) as a warning, anything else (a 500, an error of
+/// the connection) as an error.
+fn log_failure(
+    class: tower_http::classify::ServerErrorsFailureClass,
+    latency: std::time::Duration,
+    _span: &tracing::Span,
+) {
+    use tower_http::classify::ServerErrorsFailureClass as C;
+    let ms = latency.as_secs_f64() * 1e3;
+    match class {
+        C::StatusCode(s) if s == http::StatusCode::SERVICE_UNAVAILABLE => {
+            tracing::warn!(status = s.as_u16(), latency_ms = ms, "refused")
+        }
+        C::StatusCode(s) => tracing::error!(status = s.as_u16(), latency_ms = ms, "failed"),
+        C::Error(e) => tracing::error!(error = %e, latency_ms = ms, "failed"),
+    }
 }
 
 /// The fallback of unknown paths.

@@ -145,7 +145,9 @@ pub fn make_span(req: &Request) -> tracing::Span {
         .get::<MatchedPath>()
         .map(|m| m.as_str())
         .unwrap_or("unmatched");
-    tracing::info_span!("request", request_id = id, method = %req.method(), route)
+    // At ERROR level so that it is enabled whatever `RAYD_LOG` lets through: a warning or
+    // error of the request carries its id even where info lines are filtered out.
+    tracing::error_span!("request", request_id = id, method = %req.method(), route)
 }
 
 #[cfg(test)]

@@ -181,18 +181,38 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
         .iter()
         .filter(|r| r.seconds > 0.0 && r.errors.rmse > 0.0 && r.seconds.is_finite())
         .collect();
-    let (x0, x1) = log_bounds(usable.iter().map(|r| r.seconds))
-        .ok_or_else(|| TradeoffError::Plot("no rung has a positive time and error".into()))?;
-    let (y0, y1) = log_bounds(usable.iter().map(|r| r.errors.rmse)).expect("same rows");
+    // Rungs with no error (an image equal to the reference: a black one, say) or no time
+    // have no place on log axes: they are left out, and the caption says how many.
+    let left_out = report.rows.len() - usable.len();
     let (w, h) = PLOT;
     let mut rgb = vec![0u8; w as usize * h as usize * 3];
+    let mut caption = format!(
+        "{}: error against time ({}×{}, {} thread(s), reference {} spp)",
+        report.scene, report.width, report.height, report.threads, report.reference.spp
+    );
+    if left_out > 0 {
+        caption += &format!("; {left_out} rung(s) of zero error not shown");
+    }
+    let bounds = log_bounds(usable.iter().map(|r| r.seconds))
+        .zip(log_bounds(usable.iter().map(|r| r.errors.rmse)));
+    let Some(((x0, x1), (y0, y1))) = bounds else {
+        let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        root.titled(&caption, ("sans-serif", 20))
+            .map_err(|x| e(&x))?
+            .draw(&Text::new(
+                "no rung has both a time and an error above 0 (see the CSV)",
+                (40, h as i32 / 2),
+                ("sans-serif", 18),
+            ))
+            .map_err(|x| e(&x))?;
+        root.present().map_err(|x| e(&x))?;
+        drop(root);
+        return encode_rgb8(&rgb, w, h);
+    };
     {
         let root = BitMapBackend::with_buffer(&mut rgb, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(&x))?;
-        let caption = format!(
-            "{}: error against time ({}×{}, {} thread(s), reference {} spp)",
-            report.scene, report.width, report.height, report.threads, report.reference.spp
-        );
         let mut chart = ChartBuilder::on(&root)
             .caption(caption, ("sans-serif", 20))
             .margin(14)
@@ -362,10 +382,20 @@ mod tests {
         let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
         let reader = decoder.read_info().unwrap();
         assert_eq!((reader.info().width, reader.info().height), PLOT);
+        // Rungs equal to the reference (a black frame) have no place on log axes: the plot
+        // says so instead of failing the run, with one or with every rung at zero error.
+        let mut some = report();
+        some.rows[1].errors.rmse = 0.0;
         let mut empty = report();
         for r in &mut empty.rows {
             r.errors.rmse = 0.0;
         }
-        assert!(matches!(plot(&empty), Err(TradeoffError::Plot(_))));
+        for r in [some, empty] {
+            let bytes = plot(&r).unwrap();
+            let reader = png::Decoder::new(std::io::Cursor::new(bytes))
+                .read_info()
+                .unwrap();
+            assert_eq!((reader.info().width, reader.info().height), PLOT);
+        }
     }
 }

@@ -249,6 +249,35 @@ async function openServer(browser, dir) {
     await card.locator(".delete").click();
     await card.waitFor({ state: "detached" });
     check((await fetch(`${server.url}/v1/jobs/${long}`)).status === 404, "the deleted job is gone");
+
+    // A scene another client uploads appears without changing the user's choice.
+    await page.selectOption("#render-scene", fox);
+    const other = await (await fetch(`${server.url}/v1/scenes?name=other-client.glb`, {
+      method: "POST",
+      headers: { "Content-Type": "model/gltf-binary" },
+      body: fs.readFileSync(path.join(SCENES, "Triangle.glb")),
+    })).json();
+    await page.locator(`#render-scene option[value="${other.id}"]`).waitFor({ state: "attached", timeout: 30_000 });
+    check((await page.locator("#render-scene").inputValue()) === fox, "the render form keeps the user's scene");
+
+    // Six unfinished jobs at once: the page follows at most three event streams, so its
+    // other calls still get a connection (a cancel answers at once).
+    const spec = JSON.stringify({ width: 1600, height: 1200, spp: 256, integrator: "path" });
+    const many = [];
+    for (let i = 0; i < 6; i++) {
+      const r = await fetch(`${server.url}/v1/scenes/${box}/render`, {
+        method: "POST", headers: { "Content-Type": "application/json" }, body: spec,
+      });
+      check(r.status === 202, `render ${i} accepted: ${r.status}`);
+      many.push((await r.json()).id);
+    }
+    await page.waitForFunction((ids) => ids.every((id) => document.querySelector(`.job[data-id="${id}"]`)),
+      many, { timeout: 30_000 });
+    for (const id of many) {
+      await page.locator(`.job[data-id="${id}"] .cancel`).click();
+      await page.waitForFunction((job) =>
+        document.querySelector(`.job[data-id="${job}"]`).dataset.state === "cancelled", id, { timeout: 10_000 });
+    }
     await finish(t);
   } catch (e) {
     e.message += `\nserver log:\n${server.log()}`;

@@ -11,6 +11,13 @@
 const TOKEN_KEY = "rayd-token";
 const REFRESH_MS = 10000;
 const ENDED = new Set(["succeeded", "failed", "cancelled"]);
+// The newest jobs shown (the listing is oldest first: the page reads it to its end).
+const SHOWN_JOBS = 200;
+// Event streams open at once. A browser keeps six HTTP/1.1 connections to one origin, and
+// each stream holds one for as long as its job runs: more streams would leave no
+// connection for the page's other calls (a cancel, the refresh). Jobs beyond these are
+// updated by the refresh.
+const MAX_STREAMS = 3;
 
 const state = {
   auth: "none",
@@ -18,6 +25,7 @@ const state = {
   jobs: new Map(), // id -> { view, card, resultLoaded }
   streams: new Map(), // job id -> AbortController
   timer: null,
+  refreshError: null, // the message a failed refresh showed, cleared by one that works
 };
 
 const $ = (id) => document.getElementById(id);
@@ -125,7 +133,7 @@ async function loadScenes() {
     const page = await json(`/v1/scenes?${q}`);
     for (const s of page.scenes) {
       seen.add(s.id);
-      showScene(s);
+      showScene(s, false);
     }
     pageToken = page.next_page_token;
     if (!pageToken) break;
@@ -133,7 +141,10 @@ async function loadScenes() {
   for (const id of [...state.scenes.keys()]) if (!seen.has(id)) dropScene(id);
 }
 
-function showScene(view) {
+/** Adds a scene's card and its option in the render form, which it selects when `select`
+ * (the user's own upload) or when nothing was selected: a scene that another client
+ * uploads never changes the user's choice. */
+function showScene(view, select = true) {
   if (state.scenes.has(view.id)) return;
   const name = view.name ?? "(unnamed)";
   const img = el("img", {
@@ -161,8 +172,10 @@ function showScene(view) {
   );
   state.scenes.set(view.id, { view, card });
   $("scenes").prepend(card);
-  $("render-scene").prepend(el("option", { value: view.id, text: `${name} (${short(view.id)})` }));
-  $("render-scene").value = view.id;
+  const picker = $("render-scene");
+  const chosen = picker.value;
+  picker.prepend(el("option", { value: view.id, text: `${name} (${short(view.id)})` }));
+  picker.value = select || !chosen ? view.id : chosen;
   loadThumbnail(view.id, img).catch(report);
 }
 
@@ -231,9 +244,21 @@ async function upload(files) {
 // ---- jobs --------------------------------------------------------------------------
 
 async function loadJobs() {
-  const page = await json("/v1/jobs?limit=200");
+  let jobs = [];
+  let pageToken = "";
+  for (let pages = 0; pages < 50; pages++) {
+    const q = new URLSearchParams({ limit: "1000" });
+    if (pageToken) q.set("page_token", pageToken);
+    const page = await json(`/v1/jobs?${q}`);
+    jobs = jobs.concat(page.jobs);
+    // Only the newest are shown: keep the list short while reading a long one.
+    if (jobs.length > 4 * SHOWN_JOBS) jobs = jobs.slice(-SHOWN_JOBS);
+    pageToken = page.next_page_token;
+    if (!pageToken) break;
+  }
+  const newest = jobs.sort((a, b) => a.created_at - b.created_at).slice(-SHOWN_JOBS);
   const seen = new Set();
-  for (const j of [...page.jobs].sort((a, b) => a.created_at - b.created_at)) {
+  for (const j of newest) {
     seen.add(j.id);
     showJob(j);
   }
@@ -335,7 +360,7 @@ function dropJob(id) {
 /** Reads one job's Server-Sent Events (fetch + a stream reader, so the token can go in
  * the Authorization header) and shows each state as it comes. */
 async function follow(id) {
-  if (state.streams.has(id)) return;
+  if (state.streams.has(id) || state.streams.size >= MAX_STREAMS) return;
   const controller = new AbortController();
   state.streams.set(id, controller);
   try {
@@ -445,8 +470,12 @@ async function refresh() {
     await health();
     await loadScenes();
     await loadJobs();
+    // The server answers again: what the last failed refresh said no longer holds.
+    if (state.refreshError !== null && $("message").textContent === state.refreshError) say("");
+    state.refreshError = null;
   } catch (err) {
     report(err);
+    state.refreshError = $("message").textContent;
   }
 }
 

@@ -60,7 +60,7 @@ pub fn wants_html(headers: &HeaderMap) -> bool {
             }
         }
     }
-    html > 0.0 && html >= json
+    html > json
 }
 
 /// A page response: `body` as `content_type`, with the security headers; the assets are
@@ -142,6 +142,9 @@ mod tests {
         assert!(!wants_html(&accept("*/*")));
         assert!(!wants_html(&accept("application/json")));
         assert!(!wants_html(&accept("application/json, text/html;q=0.5")));
+        // Equal ranks: JSON (the page is for clients that rank HTML above it).
+        assert!(!wants_html(&accept("application/json, text/html")));
+        assert!(!wants_html(&accept("text/html, application/json")));
         assert!(wants_html(&accept("application/json;q=0.5, text/html")));
         assert!(!wants_html(&accept("text/html;q=0")));
     }
