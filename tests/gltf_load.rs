@@ -1675,3 +1675,25 @@ fn glb_json_chunk_padded_with_nuls_is_accepted() {
     let e = load_bytes(b"[1, 2]").unwrap_err();
     assert!(e.to_string().contains("glTF"), "{e}");
 }
+
+/// A scene's `nodes` is optional in glTF 2.0: a scene without it is an empty scene, not a
+/// JSON error, in a `.gltf` as in a GLB.
+#[test]
+fn a_scene_without_nodes_is_empty() {
+    let doc = json!({"asset": {"version": "2.0"}, "scenes": [{}], "scene": 0});
+    let scene = load_bytes(&serde_json::to_vec(&doc).unwrap()).unwrap();
+    assert!(scene.triangles.is_empty());
+    let scene = load_bytes(&glb(&doc, &[])).unwrap();
+    assert!(scene.triangles.is_empty());
+    // Beside a scene that has nodes, which still counts.
+    let mut b = Builder::default();
+    let pos = b.positions(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]);
+    let extra = json!({
+        "scenes": [{"name": "empty"}, {"nodes": [0]}],
+        "scene": 1,
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": pos}}]}],
+    });
+    let scene = load_bytes(&b.glb(extra)).unwrap();
+    assert_eq!(scene.triangles.len(), 1);
+}

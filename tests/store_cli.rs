@@ -61,4 +61,41 @@ fn rayd_backup_writes_a_copy_that_opens_as_a_store() {
     assert!(!again.status.success());
     let err = String::from_utf8_lossy(&again.stderr);
     assert!(err.contains("not empty"), "{err}");
+
+    let backup = |out: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_rayd"))
+            .arg("backup")
+            .arg("--data-dir")
+            .arg(&data)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .unwrap()
+    };
+    // A copy inside the data directory is refused.
+    let inner = backup(&data.join("inner"));
+    let err = String::from_utf8_lossy(&inner.stderr);
+    assert!(
+        !inner.status.success() && err.contains("inside the data directory"),
+        "{err}"
+    );
+    assert!(!data.join("inner").exists());
+    // The staging directory a killed backup left (its process gone) goes with the next
+    // backup to the same place; another destination's is left alone.
+    #[cfg(target_os = "linux")]
+    {
+        let dead = u32::MAX - 7; // no process has this id (pid_max is at most 2^22)
+        let left = tmp.path().join(format!(".second.rayd-backup-{dead}.tmp"));
+        let other = tmp.path().join(format!(".third.rayd-backup-{dead}.tmp"));
+        for d in [&left, &other] {
+            std::fs::create_dir_all(d.join("blobs")).unwrap();
+        }
+        let run = backup(&tmp.path().join("second"));
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        assert!(!left.exists() && other.exists());
+    }
 }

@@ -317,10 +317,32 @@ async fn backup_into(
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    // A copy inside the store would be copied by the next backup, and collected by nothing.
+    if let (Ok(store), Ok(place)) = (dir.canonicalize(), parent.canonicalize()) {
+        if place.starts_with(&store) {
+            return Err(StoreError::invalid(
+                "backup destination",
+                format!(
+                    "{} is inside the data directory {}",
+                    dest.display(),
+                    dir.display()
+                ),
+            ));
+        }
+    }
     let mut staged_name = std::ffi::OsString::from(".");
     staged_name.push(name);
+    let prefix = format!("{}.rayd-backup-", staged_name.to_string_lossy());
     staged_name.push(format!(".rayd-backup-{}.tmp", std::process::id()));
     let staging = parent.join(staged_name);
+    {
+        let parent = parent.clone();
+        blocking(dir, move || {
+            remove_dead_stagings(&parent, &prefix);
+            Ok(())
+        })
+        .await?;
+    }
     let clear = |staging: &Path| {
         let staging = staging.to_path_buf();
         blocking(dir, move || remove_dir_if_any(&staging))
@@ -351,6 +373,33 @@ async fn backup_into(
         let _ = clear(&staging).await;
     }
     placed.map(|()| report)
+}
+
+/// Removes the staging directories `PREFIX<pid>.tmp` in `parent` that backups killed
+/// before their end left (their process is gone). Linux only: elsewhere they stay, to be
+/// removed by hand.
+fn remove_dead_stagings(parent: &Path, prefix: &str) {
+    if !cfg!(target_os = "linux") {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(pid) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix(prefix))
+            .and_then(|n| n.strip_suffix(".tmp"))
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        let alive = Path::new("/proc").join(pid.to_string()).exists();
+        if !alive && e.file_type().is_ok_and(|t| t.is_dir()) {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
 }
 
 /// Removes `dir` and all it holds, if it is there.

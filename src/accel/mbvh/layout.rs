@@ -547,7 +547,7 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
             "sah_cost": sah,
             "max_depth": self.depth,
             "bytes": self.bytes(),
-            "bytes_per_triangle": ratio(self.bytes() as f64, live.max(1) as f64),
+            "bytes_per_triangle": ratio(self.bytes() as f64, live as f64),
         })
     }
 }

@@ -169,7 +169,28 @@ pub(super) fn parse(container: &Container<'_>) -> Result<json::Root, GltfError> 
     {
         return Err(GltfError::UnsupportedExtension(ext.clone()));
     }
-    json::Root::from_slice(container.json).map_err(|e| json_error(e, container.is_glb))
+    json::Root::from_slice(container.json).or_else(|e| {
+        scenes_given_nodes(container.json)
+            .map(|v| serde_json::from_value(v).map_err(|e| json_error(e, container.is_glb)))
+            .unwrap_or_else(|| Err(json_error(e, container.is_glb)))
+    })
+}
+
+/// The document with `"nodes": []` given to each scene that has none, if any has none
+/// (glTF 2.0 makes a scene's `nodes` optional; the `gltf` crate's reader requires it), or
+/// `None`: it was not that.
+fn scenes_given_nodes(json: &[u8]) -> Option<serde_json::Value> {
+    let mut doc: serde_json::Value = serde_json::from_slice(json).ok()?;
+    let mut given = false;
+    for scene in doc.get_mut("scenes")?.as_array_mut()? {
+        if let Some(o) = scene.as_object_mut() {
+            if !o.contains_key("nodes") {
+                o.insert("nodes".into(), serde_json::Value::Array(Vec::new()));
+                given = true;
+            }
+        }
+    }
+    given.then_some(doc)
 }
 
 /// Every buffer's bytes, exactly its declared `byteLength`.
