@@ -1,5 +1,6 @@
 # rayd serve on a slim Debian, with the Embree peer. Build: docker build -t rayd .
 # Run: docker run -p 8080:8080 -v rayd-data:/data rayd
+# (a named volume; a host directory bind-mounted at /data must be writable by uid 10001)
 FROM rust:1-bookworm AS build
 RUN apt-get update \
  && apt-get install -y --no-install-recommends libembree-dev \
@@ -8,7 +9,6 @@ WORKDIR /src
 COPY Cargo.toml Cargo.lock ./
 COPY src ./src
 COPY proto ./proto
-COPY tests ./tests
 COPY scenes ./scenes
 RUN cargo build --release --features embree --bin rayd
 
