@@ -74,13 +74,23 @@ pub fn csv(report: &Report) -> String {
     out
 }
 
+/// Seconds to four significant digits at least, so that a tiny frame's times are not all
+/// `0.000` (three decimals from a second up).
+fn secs(x: f64) -> String {
+    if !(x.is_finite() && x > 0.0) || x >= 1.0 {
+        return format!("{x:.3}");
+    }
+    let decimals = (3 - x.log10().floor() as i32).clamp(3, 12) as usize;
+    format!("{x:.decimals$}")
+}
+
 /// The rows as a Markdown table, fastest first, with a line saying what was measured.
 pub fn markdown(report: &Report) -> String {
     let mut out = String::new();
     let r = &report.reference;
     let _ = writeln!(
         out,
-        "{}, {}×{}, {} thread(s); reference: {} spp, {} bounces, seed {} ({:.2} s, mean radiance {:.4}). \
+        "{}, {}×{}, {} thread(s); reference: {} spp, {} bounces, seed {} ({} s, mean radiance {:.4}). \
          Time is the frame's build + trace + shade; ★ marks the Pareto front of time and RMSE.\n",
         report.scene,
         report.width,
@@ -89,7 +99,7 @@ pub fn markdown(report: &Report) -> String {
         r.spp,
         r.bounces,
         r.seed,
-        r.seconds,
+        secs(r.seconds),
         r.mean
     );
     out.push_str(
@@ -101,7 +111,7 @@ pub fn markdown(report: &Report) -> String {
     for x in rows {
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.4} | {:.4} | {:.2} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.4} | {:.4} | {:.2} | {} |",
             x.axis,
             x.setting,
             x.spp,
@@ -109,8 +119,8 @@ pub fn markdown(report: &Report) -> String {
             x.accel,
             x.build,
             x.precision,
-            x.seconds,
-            x.trace_seconds,
+            secs(x.seconds),
+            secs(x.trace_seconds),
             x.errors.rmse,
             x.errors.rel_mse,
             x.errors.psnr,
@@ -367,6 +377,14 @@ mod tests {
         assert!(rows[3].starts_with("| accel | accel=bvh2 |"));
         assert!(rows[3].ends_with("|  |"));
         assert!(text.contains("Not measured: roulette: not yet."));
+    }
+
+    #[test]
+    fn tiny_times_keep_four_digits() {
+        assert_eq!(secs(2.5), "2.500");
+        assert_eq!(secs(0.25), "0.2500");
+        assert_eq!(secs(0.000_123_4), "0.0001234");
+        assert_eq!(secs(0.0), "0.000");
     }
 
     #[test]

@@ -45,6 +45,17 @@ def test_demo_scenes_are_listed_and_an_upload_of_the_same_bytes_finds_them(clien
     assert again.id == fox.id
 
 
+def test_an_upload_may_name_its_scene(client):
+    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32) + np.float32(3.125)
+    scene = client.upload(bytes(formats.encode_triangles(tris)), name="a näme")
+    assert scene.info["name"] == "a näme"
+    assert {s.id: s.info.get("name") for s in client.scenes()}[scene.id] == "a näme"
+    with pytest.raises(rayd.ProblemError) as e:
+        client.upload(bytes(formats.encode_triangles(tris + 1)), name="bad\nname")
+    assert e.value.status == 400 and e.value.field == "name"
+    scene.delete()
+
+
 def test_upload_of_unknown_bytes_names_the_problem(client):
     with pytest.raises(ValueError, match="content_type"):
         client.upload(b"\x00\x01 not a scene")

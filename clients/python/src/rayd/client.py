@@ -294,10 +294,13 @@ class Client:
 
     # -- scenes ---------------------------------------------------------------------------
 
-    def upload(self, path_or_bytes, *, content_type: str | None = None) -> Scene:
+    def upload(self, path_or_bytes, *, content_type: str | None = None,
+               name: str | None = None) -> Scene:
         """Uploads a scene: a path to a ``.glb``, ``.gltf`` (buffers embedded) or ``.tri``
         file, or the file's bytes. The media type comes from the extension or the bytes
-        unless given. Uploading the same bytes twice gives the same scene."""
+        unless given. ``name`` names it in listings (1 to 1024 bytes, no control
+        characters; bytes uploaded before keep their first name). Uploading the same bytes
+        twice gives the same scene."""
         if isinstance(path_or_bytes, (str, os.PathLike)):
             path = os.fspath(path_or_bytes)
             with open(path, "rb") as f:
@@ -315,7 +318,7 @@ class Client:
             )
         # Safe to send again: the same bytes make the same scene (the first one's, 200).
         info = self._json("POST", "/v1/scenes", data=data, replay=True,
-                          headers={"Content-Type": content_type})
+                          params={"name": name}, headers={"Content-Type": content_type})
         scene = Scene(self, info)
         if content_type == TRI_MEDIA:
             # The positions of version 1 are the uploaded records themselves.
