@@ -384,9 +384,11 @@ pub fn render<W: Waves + ?Sized>(
     };
     // Pixels outside it see what a miss sees, without a ray (`render_wave`).
     let visible = bounds.map_or(PixelRect::full(w, h), |b| camera.pixel_rect(b, w, h));
-    // Sums in f64: a pixel's mean is then its samples' mean even where their f32 sum
-    // would overflow (a sky of 3e38 over 4 samples).
-    let mut sum = vec![[0.0f64; 3]; n];
+    // Each sample adds its share (radiance / spp), so the sum is the pixel's mean, and it
+    // stays finite wherever the samples are (a sky of 3e38 over 4 samples: a sum of the
+    // samples themselves would overflow). f64 sums would do as well, but their buffer's
+    // page faults cost a small frame a tenth of its shading (BENCHMARKS §33).
+    let mut sum = vec![[0.0f32; 3]; n];
     // On the pool as well: outside a wave, rayon would use its global pool, whose threads
     // (one per core) `--threads` does not bound.
     waves.run_wave(&mut || fill_misses(&mut sum, visible, w as usize, options))?;
@@ -464,10 +466,7 @@ pub fn render<W: Waves + ?Sized>(
         });
         start = end;
     }
-    let pixels = sum
-        .into_iter()
-        .map(|c| c.map(|x| (x / f64::from(spp)) as f32))
-        .collect();
+    let pixels = sum;
     let inv = 1.0 / spp as f32;
     let alpha = covered.into_iter().map(|k| k as f32 * inv).collect();
     let a = options.aovs;
@@ -493,7 +492,7 @@ pub fn render<W: Waves + ?Sized>(
 /// Where one wave accumulates: its pixels' slices of the frame's buffers.
 struct WaveOut<'a> {
     /// Sums of the samples' radiance.
-    radiance: &'a mut [[f64; 3]],
+    radiance: &'a mut [[f32; 3]],
     /// Samples whose camera ray hit.
     covered: &'a mut [u32],
     /// The primary hits, on sample 0 when AOVs are asked for.
@@ -751,7 +750,7 @@ fn render_wave(
                 })
                 .collect();
             for (p, c) in paths.state.iter().zip(shown) {
-                add(&mut out[p.pixel], c, 1.0);
+                add(&mut out[p.pixel], c, sample_weight(options));
             }
         }
         Integrator::Ao => {
@@ -772,13 +771,13 @@ fn render_wave(
                     });
                     idx.push(p.pixel);
                 } else {
-                    add(&mut out[p.pixel], BACKGROUND, 1.0);
+                    add(&mut out[p.pixel], BACKGROUND, sample_weight(options));
                 }
             }
             let mut open = vec![Vec3::ONE; ao_rays.len()];
             trace_shadows(frame, &mut ao_rays, &mut open, trace, stats);
             for (&i, k) in idx.iter().zip(&open) {
-                add(&mut out[i], k.to_array(), 1.0);
+                add(&mut out[i], k.to_array(), sample_weight(options));
             }
         }
         Integrator::Path => trace_paths(frame, paths, out, steps, trace, shadows, stats),
@@ -1053,7 +1052,7 @@ const _: () = assert!(
 fn trace_paths(
     frame: Frame<'_>,
     live: &mut Paths,
-    out: &mut [[f64; 3]],
+    out: &mut [[f32; 3]],
     steps: &mut Vec<Step>,
     bufs: &mut TraceBufs,
     shadows: &mut Shadows,
@@ -1082,7 +1081,11 @@ fn trace_paths(
         for (i, step) in steps.iter().enumerate() {
             let pixel = live.state[i].pixel;
             if step.emitted != Vec3::ZERO {
-                add(&mut out[pixel], step.emitted.to_array(), 1.0);
+                add(
+                    &mut out[pixel],
+                    step.emitted.to_array(),
+                    sample_weight(options),
+                );
             }
             if let Some((ray, gain)) = step.shadow {
                 shadows.rays.push(ray);
@@ -1098,7 +1101,7 @@ fn trace_paths(
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
         for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
             if gain.max_element() > 0.0 {
-                add(&mut out[pixel], gain.to_array(), 1.0);
+                add(&mut out[pixel], gain.to_array(), sample_weight(options));
             }
         }
         if live.is_empty() {
@@ -1268,14 +1271,14 @@ fn shade_vertex(
 /// `path`, the background otherwise, added one sample at a time as a traced miss adds it, so
 /// the image is bit for bit the one that tracing them would give. Done once, in parallel,
 /// instead of in every wave.
-fn fill_misses(sum: &mut [[f64; 3]], visible: PixelRect, w: usize, options: &RenderOptions) {
+fn fill_misses(sum: &mut [[f32; 3]], visible: PixelRect, w: usize, options: &RenderOptions) {
     let miss = match options.integrator {
         Integrator::Path => options.sky,
         _ => BACKGROUND,
     };
-    let mut total = [0.0f64; 3];
+    let mut total = [0.0f32; 3];
     for _ in 0..options.spp.max(1) {
-        add(&mut total, miss, 1.0);
+        add(&mut total, miss, sample_weight(options));
     }
     if total == [0.0; 3] || w == 0 {
         return;
@@ -1288,8 +1291,14 @@ fn fill_misses(sum: &mut [[f64; 3]], visible: PixelRect, w: usize, options: &Ren
 }
 
 #[inline]
-fn add(o: &mut [f64; 3], c: [f32; 3], k: f32) {
+fn add(o: &mut [f32; 3], c: [f32; 3], k: f32) {
     for j in 0..3 {
-        o[j] += f64::from(c[j] * k);
+        o[j] += c[j] * k;
     }
+}
+
+/// What one sample adds to its pixel's mean, per unit of its radiance: 1 / spp.
+#[inline]
+fn sample_weight(options: &RenderOptions) -> f32 {
+    1.0 / options.spp.max(1) as f32
 }
