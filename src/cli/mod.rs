@@ -320,47 +320,29 @@ impl StopOnSignal {
     /// Installs the handlers (from then on the signals no longer end the process) and
     /// starts the thread that waits for them.
     fn install(token: crate::jobs::CancelToken) -> Result<StopOnSignal, CliError> {
+        let failed = |source| CliError::Usage(format!("cannot install a signal handler: {source}"));
+        let rt = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .map_err(failed)?;
+        let mut signals = rt
+            .block_on(async { crate::service::health::Signals::new() })
+            .map_err(failed)?;
         let came = std::sync::Arc::new(std::sync::OnceLock::new());
-        #[cfg(unix)]
-        {
-            use tokio::signal::unix::{signal, SignalKind};
-            let failed =
-                |source| CliError::Usage(format!("cannot install a signal handler: {source}"));
-            let rt = tokio::runtime::Builder::new_current_thread()
-                .enable_all()
-                .build()
-                .map_err(failed)?;
-            let (mut term, mut int) = rt
-                .block_on(async {
-                    Ok::<_, std::io::Error>((
-                        signal(SignalKind::terminate())?,
-                        signal(SignalKind::interrupt())?,
-                    ))
+        let seen = std::sync::Arc::clone(&came);
+        std::thread::Builder::new()
+            .name("rayd-signals".into())
+            .spawn(move || {
+                rt.block_on(async move {
+                    let first = signals.next().await;
+                    let _ = seen.set(first);
+                    eprintln!("rayd: {}: stopping (again to stop at once)", first.0);
+                    token.cancel();
+                    let (_, number) = signals.next().await;
+                    std::process::exit(128 + i32::from(number));
                 })
-                .map_err(failed)?;
-            let seen = std::sync::Arc::clone(&came);
-            std::thread::Builder::new()
-                .name("rayd-signals".into())
-                .spawn(move || {
-                    rt.block_on(async move {
-                        let mut next = async || {
-                            tokio::select! {
-                                _ = int.recv() => ("SIGINT", 2u8),
-                                _ = term.recv() => ("SIGTERM", 15u8),
-                            }
-                        };
-                        let first = next().await;
-                        let _ = seen.set(first);
-                        eprintln!("rayd: {}: stopping (again to stop at once)", first.0);
-                        token.cancel();
-                        let (_, number) = next().await;
-                        std::process::exit(128 + i32::from(number));
-                    })
-                })
-                .map_err(failed)?;
-        }
-        #[cfg(not(unix))]
-        let _ = token;
+            })
+            .map_err(failed)?;
         Ok(StopOnSignal { came })
     }
 

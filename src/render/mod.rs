@@ -731,6 +731,7 @@ fn render_wave(
         }
     }
     let out = &mut *wave.radiance;
+    let weight = sample_weight(options);
     match options.integrator {
         Integrator::Primary | Integrator::Normals => {
             let lanes = paths.rays.par_iter().zip(&paths.hits[..]);
@@ -750,7 +751,7 @@ fn render_wave(
                 })
                 .collect();
             for (p, c) in paths.state.iter().zip(shown) {
-                add(&mut out[p.pixel], c, sample_weight(options));
+                add(&mut out[p.pixel], c, weight);
             }
         }
         Integrator::Ao => {
@@ -771,13 +772,13 @@ fn render_wave(
                     });
                     idx.push(p.pixel);
                 } else {
-                    add(&mut out[p.pixel], BACKGROUND, sample_weight(options));
+                    add(&mut out[p.pixel], BACKGROUND, weight);
                 }
             }
             let mut open = vec![Vec3::ONE; ao_rays.len()];
             trace_shadows(frame, &mut ao_rays, &mut open, trace, stats);
             for (&i, k) in idx.iter().zip(&open) {
-                add(&mut out[i], k.to_array(), sample_weight(options));
+                add(&mut out[i], k.to_array(), weight);
             }
         }
         Integrator::Path => trace_paths(frame, paths, out, steps, trace, shadows, stats),
@@ -1059,6 +1060,7 @@ fn trace_paths(
     stats: &mut RenderStats,
 ) {
     let options = frame.options;
+    let weight = sample_weight(options);
     let sky = Vec3::from(options.sky);
     for bounce in 0..=options.bounces {
         // A vertex reached after `bounce` scatterings may scatter once more.
@@ -1081,11 +1083,7 @@ fn trace_paths(
         for (i, step) in steps.iter().enumerate() {
             let pixel = live.state[i].pixel;
             if step.emitted != Vec3::ZERO {
-                add(
-                    &mut out[pixel],
-                    step.emitted.to_array(),
-                    sample_weight(options),
-                );
+                add(&mut out[pixel], step.emitted.to_array(), weight);
             }
             if let Some((ray, gain)) = step.shadow {
                 shadows.rays.push(ray);
@@ -1101,7 +1099,7 @@ fn trace_paths(
         trace_shadows(frame, &mut shadows.rays, &mut shadows.gain, bufs, stats);
         for (&pixel, gain) in shadows.pixel.iter().zip(shadows.gain.iter()) {
             if gain.max_element() > 0.0 {
-                add(&mut out[pixel], gain.to_array(), sample_weight(options));
+                add(&mut out[pixel], gain.to_array(), weight);
             }
         }
         if live.is_empty() {

@@ -156,13 +156,13 @@ pub fn shutdown_on_signals(ready: Ready, shutdown: Shutdown) -> std::io::Result<
     let mut signals = Signals::new()?;
     tokio::spawn(async move {
         tokio::select! {
-            name = signals.next() => tracing::info!(signal = name, "shutting down"),
+            (name, _) = signals.next() => tracing::info!(signal = name, "shutting down"),
             () = shutdown.cancelled() => {}
         }
         ready.set_draining();
         shutdown.trigger();
         tokio::select! {
-            name = signals.next() => {
+            (name, _) = signals.next() => {
                 tracing::warn!(signal = name, "second signal: ending the grace period now");
                 shutdown.hurry();
             }
@@ -172,8 +172,9 @@ pub fn shutdown_on_signals(ready: Ready, shutdown: Shutdown) -> std::io::Result<
     Ok(())
 }
 
-/// The signals that stop the service: SIGTERM and SIGINT (Ctrl-C elsewhere).
-struct Signals {
+/// The signals that stop the service, and a command line that cleans up after itself:
+/// SIGTERM and SIGINT (Ctrl-C elsewhere).
+pub(crate) struct Signals {
     #[cfg(unix)]
     term: tokio::signal::unix::Signal,
     #[cfg(unix)]
@@ -181,8 +182,9 @@ struct Signals {
 }
 
 impl Signals {
-    /// Installs the handlers: from now on these signals no longer end the process.
-    fn new() -> std::io::Result<Signals> {
+    /// Installs the handlers (inside a tokio runtime): from now on these signals no longer
+    /// end the process.
+    pub(crate) fn new() -> std::io::Result<Signals> {
         #[cfg(unix)]
         {
             use tokio::signal::unix::{signal, SignalKind};
@@ -195,19 +197,19 @@ impl Signals {
         Ok(Signals {})
     }
 
-    /// The next one to arrive, by name.
-    async fn next(&mut self) -> &'static str {
+    /// The next one to arrive: its name and number.
+    pub(crate) async fn next(&mut self) -> (&'static str, u8) {
         #[cfg(unix)]
         {
             tokio::select! {
-                _ = self.term.recv() => "SIGTERM",
-                _ = self.int.recv() => "SIGINT",
+                _ = self.term.recv() => ("SIGTERM", 15),
+                _ = self.int.recv() => ("SIGINT", 2),
             }
         }
         #[cfg(not(unix))]
         {
             let _ = tokio::signal::ctrl_c().await;
-            "SIGINT"
+            ("SIGINT", 2)
         }
     }
 }

@@ -37,3 +37,19 @@ def rayd_trace(rayd_bin: Path, scene: Path, rays_body, tmp: Path, **flags) -> tu
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, f"{' '.join(cmd)}: {done.stderr}"
     return out.read_bytes(), json.loads(done.stdout)
+
+
+def read_request(reader):
+    """One HTTP/1.1 request from a socket's binary reader, for the tests' stand-in servers:
+    ``(method, path, headers, body)`` (path without its query, header names lowercase), or
+    None when the connection closed first."""
+    line = reader.readline()
+    if not line:
+        return None
+    method, target, _ = line.decode().split(" ", 2)
+    headers = {}
+    while (header := reader.readline()) not in (b"\r\n", b""):
+        name, _, value = header.decode().partition(":")
+        headers[name.strip().lower()] = value.strip()
+    body = reader.read(int(headers.get("content-length", 0)))
+    return method, target.split("?")[0], headers, body

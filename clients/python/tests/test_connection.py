@@ -19,6 +19,7 @@ import pytest
 import requests
 
 import rayd
+from helpers import read_request
 from rayd import formats
 
 SCENE = "ab12"
@@ -53,16 +54,10 @@ class DroppingServer:
     def _serve(self, conn):
         with conn, conn.makefile("rb") as reader:
             for n in range(2):
-                line = reader.readline()
-                if not line:
+                request = read_request(reader)
+                if request is None:
                     return
-                method, target, _ = line.decode().split(" ", 2)
-                headers = {}
-                while (header := reader.readline()) not in (b"\r\n", b""):
-                    name, _, value = header.decode().partition(":")
-                    headers[name.strip().lower()] = value.strip()
-                body = reader.read(int(headers.get("content-length", 0)))
-                path = target.split("?")[0]
+                method, path, headers, body = request
                 self.log.append((method, path, n == 0))
                 if n == 1:
                     conn.shutdown(socket.SHUT_RDWR)  # closed, unanswered

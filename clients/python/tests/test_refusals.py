@@ -16,6 +16,7 @@ import pytest
 import requests
 
 import rayd
+from helpers import read_request
 from rayd import client as client_module
 from rayd import formats
 
@@ -29,8 +30,10 @@ TRIS = np.zeros((1, 3, 3), np.float32)
 
 
 def _response(status: str, body: bytes, ctype="application/json", extra="") -> bytes:
+    # The stand-in closes every connection after its answer, and says so: a client that
+    # sent its next request on the closed connection would meet a reset.
     return (f"HTTP/1.1 {status}\r\nContent-Type: {ctype}\r\nContent-Length: {len(body)}\r\n"
-            f"{extra}\r\n").encode() + body
+            f"Connection: close\r\n{extra}\r\n").encode() + body
 
 
 def _problem(status: int, title: str, **extras) -> bytes:
@@ -67,18 +70,11 @@ class ScriptedServer:
             threading.Thread(target=self._serve, args=(conn,), daemon=True).start()
 
     def _serve(self, conn):
-        reader = conn.makefile("rb")
-        line = reader.readline()
-        if not line:
+        request = read_request(conn.makefile("rb"))
+        if request is None:
             conn.close()
             return
-        method, target, _ = line.decode().split(" ", 2)
-        headers = {}
-        while (header := reader.readline()) not in (b"\r\n", b""):
-            name, _, value = header.decode().partition(":")
-            headers[name.strip().lower()] = value.strip()
-        reader.read(int(headers.get("content-length", 0)))
-        path = target.split("?")[0]
+        method, path, _, _ = request
         self.log.append((method, path))
         out = self.script(method, path)
         if out is None:
@@ -176,7 +172,7 @@ def test_a_body_cut_off_is_a_requests_error(scripted):
     def script(method, path):
         if path.endswith("/result"):
             head = (b"HTTP/1.1 200 OK\r\nContent-Type: image/x-exr\r\n"
-                    b"Content-Length: 100000\r\n\r\n")
+                    b"Content-Length: 100000\r\nConnection: close\r\n\r\n")
             return head + b"v/1\x01" + b"\0" * 1000  # then the connection closes
         return _response("200 OK", json.dumps({**JOB, "state": "succeeded"}).encode())
 
