@@ -530,6 +530,12 @@ impl Surfaces {
     pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> SurfacePoint {
         let prim = hit.prim as usize;
         let face = Vec3::from(tri.normal()).normalize_or_zero();
+        // glTF winds a mirrored placement's front faces clockwise.
+        let face = if self.shading.is_mirrored(prim) {
+            -face
+        } else {
+            face
+        };
         let ng = if face.dot(dir) > 0.0 { -face } else { face };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
@@ -861,6 +867,30 @@ mod tests {
         let (s, tri) = normal_mapped_with([0.5, 0.8, 0.9], 1.0, t, vec![Vec3::Z; 3]);
         let n = shading_normal(&s, &tri, Vec3::Z);
         assert!((n - Vec3::new(0.0, -0.6, -0.8)).length() < 1e-5, "{n}");
+    }
+
+    /// A triangle mirrored in X (its front face, clockwise as glTF winds mirrored
+    /// placements, facing +Z) tilts its normal map as the mirror image of the unmirrored
+    /// triangle's tilt, without vertex normals as with them.
+    #[test]
+    fn a_mirrored_triangle_tilts_its_normal_map_as_the_mirror_image() {
+        let down = Vec3::NEG_Z;
+        for normals in [Vec::new(), vec![Vec3::Z; 3]] {
+            let with = !normals.is_empty();
+            let (mut s, mut tri) = normal_mapped_with([0.8, 0.5, 0.9], 1.0, Vec::new(), normals);
+            for v in &mut tri.v {
+                v[0] = -v[0];
+            }
+            // Only a primitive without NORMAL is marked (`Shading::mirrored`).
+            if !with {
+                s.shading.mirrored = vec![1];
+            }
+            let n = shading_normal(&s, &tri, down);
+            assert!(
+                (n - Vec3::new(-0.6, 0.0, 0.8)).length() < 1e-5,
+                "{n} {with}"
+            );
+        }
     }
 
     /// Corners of one vertex colour give exactly that colour anywhere on the triangle: an

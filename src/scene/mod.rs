@@ -103,6 +103,10 @@ pub struct Shading {
     pub uv1: Vec<Vec2>,
     /// COLOR_0, linear RGBA (RGB files get alpha 1).
     pub colors: Vec<Vec4>,
+    /// One bit per triangle id of the pose: set where the triangle has no `NORMAL` and is
+    /// placed by a mirroring transform (negative determinant), whose front face glTF winds
+    /// clockwise. Empty when no triangle is (most scenes).
+    pub mirrored: Vec<u64>,
 }
 
 impl Shading {
@@ -129,7 +133,25 @@ impl Shading {
             + self.tangents.len() * 16
             + (self.uv0.len() + self.uv1.len()) * 8
             + self.colors.len() * 16
+            + self.mirrored.len() * 8
     }
+
+    /// Whether triangle `id`'s front face is the reverse of its vertex order's (see
+    /// [`Shading::mirrored`](Shading#structfield.mirrored)).
+    #[inline]
+    pub fn is_mirrored(&self, id: usize) -> bool {
+        self.mirrored
+            .get(id / 64)
+            .is_some_and(|w| w >> (id % 64) & 1 == 1)
+    }
+}
+
+/// Sets bit `i` of `bits`, growing it as needed.
+fn set_bit(bits: &mut Vec<u64>, i: usize) {
+    if bits.len() <= i / 64 {
+        bits.resize(i / 64 + 1, 0);
+    }
+    bits[i / 64] |= 1 << (i % 64);
 }
 
 /// Bytes a scene holds, by part (`rayd info`'s `bytes_by_part`).
@@ -278,9 +300,12 @@ impl Scene {
                 let wanted = compute == Compute::PositionsAndNormals;
                 pose.normals.clear();
                 pose.tangents.clear();
+                pose.mirrored.clear();
+                pose.shaded = wanted;
                 if let Some(s) = shading.filter(|_| wanted) {
                     pose.normals.extend_from_slice(&s.normals);
                     pose.tangents.extend_from_slice(&s.tangents);
+                    pose.mirrored.extend_from_slice(&s.mirrored);
                 }
                 Ok(())
             }
@@ -301,6 +326,9 @@ impl Scene {
             }
             if s.tangents.len() == pose.tangents.len() {
                 s.tangents = pose.tangents;
+            }
+            if pose.shaded {
+                s.mirrored = pose.mirrored;
             }
         }
     }

@@ -226,6 +226,11 @@ pub struct Pose {
     pub normals: Vec<Vec3>,
     /// World tangents per shading vertex, `w` the handedness; zero where absent.
     pub tangents: Vec<Vec4>,
+    /// With normals: the triangles whose front face is wound clockwise, one bit each
+    /// (see [`super::Shading::mirrored`]); empty when there are none.
+    pub mirrored: Vec<u64>,
+    /// Whether the pose was computed with [`Compute::PositionsAndNormals`].
+    pub shaded: bool,
     /// Cameras by the file's index (`Scene::cameras`).
     pub cameras: Vec<Option<Camera>>,
     /// Light-to-world transforms, one per `Scene::lights` entry.
@@ -494,6 +499,8 @@ impl Rig {
         out.triangles.clear();
         out.normals.clear();
         out.tangents.clear();
+        out.mirrored.clear();
+        out.shaded = normals;
         out.cameras.clear();
         out.cameras.resize(self.camera_count, None);
         out.lights.clear();
@@ -523,9 +530,11 @@ impl Rig {
                             weights,
                             joints: joints.filter(|_| !prim.skin_sets.is_empty()),
                         };
+                        let first = out.triangles.len();
                         placed.positions(&mut out.triangles)?;
                         if normals {
                             placed.shading(self, &mut out.normals, &mut out.tangents);
+                            placed.mirrored(first, &mut out.mirrored);
                         }
                     }
                 }
@@ -728,6 +737,31 @@ impl Placement<'_> {
         Ok(())
     }
 
+    /// Marks in `bits` the primitive's triangles (the first has id `first`) whose
+    /// transform mirrors (negative determinant), where the primitive has no `NORMAL`:
+    /// glTF winds their front faces clockwise, so their face normal is the reverse of
+    /// the one their vertex order gives. A skinned triangle takes its first vertex's
+    /// skinning matrix. With `NORMAL` the stored normals say which side is in front.
+    fn mirrored(&self, first: usize, bits: &mut Vec<u64>) {
+        let prim = self.prim;
+        if prim.normals.is_some() {
+            return;
+        }
+        for (k, c) in prim.corners.chunks_exact(3).enumerate() {
+            let m = match self.joints {
+                // A joint the skin lacks was refused when the positions were placed.
+                Some((skin, mats)) => self.skin_matrix(mats, skin, c[0] as usize).ok(),
+                None => Some(*self.world),
+            };
+            if m.is_some_and(|m| DMat3::from_mat4(m).determinant() < 0.0) {
+                super::set_bit(bits, first + k);
+            } else if self.joints.is_none() {
+                // One transform for the whole primitive: nothing mirrors.
+                return;
+            }
+        }
+    }
+
     /// Appends one world normal and tangent per vertex (zero where the file has none), if
     /// the scene keeps them.
     fn shading(&self, rig: &Rig, normals: &mut Vec<Vec3>, tangents: &mut Vec<Vec4>) {
@@ -924,6 +958,49 @@ mod tests {
             .pose(Some(f64::INFINITY), Compute::Positions, &mut pose)
             .unwrap_err();
         assert!(matches!(e, SceneError::BadTime(_)), "{e}");
+    }
+
+    /// glTF winds a mirrored placement's front faces clockwise: a primitive without
+    /// `NORMAL` under a negative determinant is marked, one with normals is not (its
+    /// normals say which side is in front), nor one placed without a mirror.
+    #[test]
+    fn mirrored_triangles_without_normals_are_marked() {
+        let mut rig = moving_triangle();
+        let mut pose = Pose::default();
+        rig.pose(None, Compute::PositionsAndNormals, &mut pose)
+            .unwrap();
+        assert!(pose.mirrored.is_empty() && pose.shaded);
+        let Item::Mesh(inst) = &mut rig.items[0] else {
+            unreachable!()
+        };
+        let mut prim = (*inst.primitives[0].1).clone();
+        prim.normals = None;
+        inst.primitives[0].1 = Arc::new(prim.clone());
+        // The same primitive twice: only the second's placement mirrors.
+        rig.nodes.push(Node {
+            local: Local::Trs {
+                translation: DVec3::ZERO,
+                rotation: Some(DQuat::IDENTITY),
+                scale: DVec3::ONE,
+            },
+            children: vec![],
+        });
+        rig.roots.push(1);
+        rig.items.insert(
+            0,
+            Item::Mesh(Instance {
+                node: 1,
+                mesh: 0,
+                skin: None,
+                weights: vec![],
+                primitives: vec![(0, Arc::new(prim))],
+            }),
+        );
+        rig.pose(Some(0.5), Compute::PositionsAndNormals, &mut pose)
+            .unwrap();
+        assert_eq!(pose.mirrored, vec![0b10]);
+        rig.pose(Some(0.5), Compute::Positions, &mut pose).unwrap();
+        assert!(pose.mirrored.is_empty() && !pose.shaded);
     }
 
     #[test]

@@ -651,6 +651,7 @@ fn shading_data(rig: &Rig, placed: &[Arc<mesh::PrimShading>], pose: &mut Pose) -
         materials: Vec::with_capacity(triangles),
         normals: std::mem::take(&mut pose.normals),
         tangents: std::mem::take(&mut pose.tangents),
+        mirrored: std::mem::take(&mut pose.mirrored),
         ..Shading::default()
     };
     let any_uv0 = placed.iter().any(|s| s.uv0.is_some());
