@@ -1697,3 +1697,106 @@ fn a_scene_without_nodes_is_empty() {
     let scene = load_bytes(&b.glb(extra)).unwrap();
     assert_eq!(scene.triangles.len(), 1);
 }
+
+/// A channel without `target.node` (`KHR_animation_pointer`'s, or any: glTF says it is then
+/// ignored) is ignored; the other channels keep their numbers and still move the scene.
+#[test]
+fn a_channel_without_a_node_is_ignored() {
+    let mut b = Builder::default();
+    let p = b.positions(&TRI);
+    let times = b.floats(&[0.0, 1.0], "SCALAR");
+    let moves = b.floats(&[0.0, 0.0, 0.0, 10.0, 0.0, 0.0], "VEC3");
+    let colours = b.floats(&[1.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0], "VEC4");
+    let bytes = b.glb(json!({
+        "extensionsUsed": ["KHR_animation_pointer"],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": p}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+        "animations": [{
+            "samplers": [{"input": times, "output": colours}, {"input": times, "output": moves}],
+            "channels": [
+                {"sampler": 0, "target": {"path": "pointer", "extensions": {"KHR_animation_pointer": {"pointer": "/materials/0/pbrMetallicRoughness/baseColorFactor"}}}},
+                {"sampler": 1, "target": {"node": 0, "path": "translation"}},
+            ],
+        }],
+    }));
+    let s = load_at(&bytes, 0.5).unwrap();
+    assert_eq!(s.triangles[0].v[0], [5.0, 0.0, 0.0]);
+    assert_eq!(s.triangles.len(), 1);
+}
+
+/// glTF gives a mesh's primitives equal numbers of morph targets, and mesh, node and
+/// animation weights one per target; other counts read weights from the wrong targets'
+/// places and are refused, naming what disagrees.
+#[test]
+fn morph_weight_counts_must_match_the_targets() {
+    let build = |targets: [usize; 2],
+                 mesh_w: Option<usize>,
+                 node_w: Option<usize>,
+                 outputs: usize| {
+        let mut b = Builder::default();
+        let p = b.positions(&TRI);
+        let d = b.positions(&[[0.0, 0.0, 1.0]; 3]);
+        let times = b.floats(&[0.0, 1.0], "SCALAR");
+        let w = b.floats(&vec![0.5; outputs], "SCALAR");
+        let prim = |n: usize| json!({"attributes": {"POSITION": p}, "targets": vec![json!({"POSITION": d}); n]});
+        let mut mesh = json!({"primitives": [prim(targets[0]), prim(targets[1])]});
+        if let Some(n) = mesh_w {
+            mesh["weights"] = json!(vec![0.0; n]);
+        }
+        let mut node = json!({"mesh": 0});
+        if let Some(n) = node_w {
+            node["weights"] = json!(vec![0.0; n]);
+        }
+        b.glb(json!({
+            "meshes": [mesh],
+            "nodes": [node],
+            "scenes": [{"nodes": [0]}],
+            "animations": [{
+                "samplers": [{"input": times, "output": w}],
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}],
+            }],
+        }))
+    };
+    let ok = load_at(&build([2, 2], Some(2), Some(2), 4), 1.0).unwrap();
+    // Both targets at 0.5 on both primitives: z = 0.5 + 0.5.
+    assert_eq!(ok.triangles[0].v[0], [0.0, 0.0, 1.0]);
+    for (bytes, want) in [
+        (build([2, 2], None, None, 8), "animation 0: channel 0: weights output accessor 3 has 8 values, expected 4 (2 morph targets"),
+        (build([2, 2], None, None, 2), "has 2 values, expected 4"),
+        (build([2, 2], None, Some(1), 4), "node 0: has 1 weights, but its mesh 0 has 2 morph targets"),
+        (build([2, 2], Some(3), None, 4), "mesh 0: has 3 weights for 2 morph targets"),
+        (build([2, 1], None, None, 4), "mesh 0 primitive 1: has 1 morph targets, but primitive 0 has 2"),
+    ] {
+        let e = load_bytes(&bytes).unwrap_err().to_string();
+        assert!(e.contains(want), "{e}");
+    }
+}
+
+/// A stored rotation of no length is refused whether or not an animation replaces it, so
+/// that whether a file loads does not depend on the time (proto/scenes.md).
+#[test]
+fn a_zero_stored_rotation_is_refused_at_every_time() {
+    let mut b = Builder::default();
+    let p = b.positions(&TRI);
+    let times = b.floats(&[0.0, 1.0], "SCALAR");
+    let turns = b.floats(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0], "VEC4");
+    let bytes = b.glb(json!({
+        "meshes": [{"primitives": [{"attributes": {"POSITION": p}}]}],
+        "nodes": [{"mesh": 0, "rotation": [0.0, 0.0, 0.0, 0.0]}],
+        "scenes": [{"nodes": [0]}],
+        "animations": [{
+            "samplers": [{"input": times, "output": turns}],
+            "channels": [{"sampler": 0, "target": {"node": 0, "path": "rotation"}}],
+        }],
+    }));
+    for e in [
+        load_bytes(&bytes).unwrap_err(),
+        load_at(&bytes, 0.5).unwrap_err(),
+    ] {
+        assert_eq!(
+            e.to_string(),
+            "node 0: rotation is a zero or non-finite quaternion"
+        );
+    }
+}

@@ -23,7 +23,13 @@ fn bad(animation: usize, reason: String) -> GltfError {
 }
 
 /// Checks every animation and reads its keyframes.
-pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, GltfError> {
+/// `morph_targets`: each mesh's number of morph targets, which a weights channel of a
+/// node that instances the mesh must give a value each per keyframe.
+pub(super) fn load(
+    data: &mut Data<'_>,
+    quantized: bool,
+    morph_targets: &[usize],
+) -> Result<Animations, GltfError> {
     let root: &json::Root = data.root;
     let mut infos = Vec::with_capacity(root.animations.len());
     let mut channels = Vec::new();
@@ -81,6 +87,11 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
                     count: anim.samplers.len(),
                 });
             };
+            // An unknown path (an extension's, or a channel without a node: see
+            // `container::optional_fields_filled`) drives nothing rayd traces.
+            let Checked::Valid(path) = ch.target.path else {
+                continue;
+            };
             let node = ch.target.node.value();
             if node >= root.nodes.len() {
                 return Err(GltfError::DanglingReference {
@@ -90,10 +101,6 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
                     count: root.nodes.len(),
                 });
             }
-            // An unknown path (an extension's) drives nothing rayd traces.
-            let Checked::Valid(path) = ch.target.path else {
-                continue;
-            };
             let Checked::Valid(interpolation) = sampler.interpolation else {
                 return Err(bad(
                     ai,
@@ -145,6 +152,22 @@ pub(super) fn load(data: &mut Data<'_>, quantized: bool) -> Result<Animations, G
             let elements = input.len() * per_key;
             let width = match path {
                 Path::Weights => {
+                    let mesh = root.nodes[node].mesh.map(|m| m.value());
+                    if let Some(m) = mesh {
+                        let targets = morph_targets.get(m).copied().unwrap_or(0);
+                        if layout.count != elements * targets {
+                            return Err(bad(
+                                ai,
+                                format!(
+                                    "channel {ci}: weights output accessor {a} has {} values, expected {} ({targets} morph targets of node {node}'s mesh {m} × {elements} keyframe elements)",
+                                    layout.count,
+                                    elements * targets
+                                ),
+                            ));
+                        }
+                    }
+                    // A node without a mesh: the channel drives nothing, but its values
+                    // must still be whole keyframes.
                     if layout.count == 0 || layout.count % elements != 0 {
                         return Err(bad(
                             ai,

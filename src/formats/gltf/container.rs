@@ -170,23 +170,45 @@ pub(super) fn parse(container: &Container<'_>) -> Result<json::Root, GltfError> 
         return Err(GltfError::UnsupportedExtension(ext.clone()));
     }
     json::Root::from_slice(container.json).or_else(|e| {
-        scenes_given_nodes(container.json)
+        optional_fields_filled(container.json)
             .map(|v| serde_json::from_value(v).map_err(|e| json_error(e, container.is_glb)))
             .unwrap_or_else(|| Err(json_error(e, container.is_glb)))
     })
 }
 
-/// The document with `"nodes": []` given to each scene that has none, if any has none
-/// (glTF 2.0 makes a scene's `nodes` optional; the `gltf` crate's reader requires it), or
-/// `None`: it was not that.
-fn scenes_given_nodes(json: &[u8]) -> Option<serde_json::Value> {
-    let mut doc: serde_json::Value = serde_json::from_slice(json).ok()?;
+/// The document with the optional fields that the `gltf` crate's reader requires filled
+/// in, if any was missing, or `None`: it was not that. glTF 2.0 makes both optional:
+/// - a scene's `nodes`: given `[]`;
+/// - an animation channel's `target.node` (`KHR_animation_pointer` channels have none,
+///   and glTF says a channel without one is ignored unless an extension defines it): given
+///   node 0 and the path `""`, which no loader knows, so that the channel is ignored as
+///   every channel of an unknown path is, keeping the other channels' numbers.
+fn optional_fields_filled(json: &[u8]) -> Option<serde_json::Value> {
+    use serde_json::Value;
+    let mut doc: Value = serde_json::from_slice(json).ok()?;
     let mut given = false;
-    for scene in doc.get_mut("scenes")?.as_array_mut()? {
-        if let Some(o) = scene.as_object_mut() {
-            if !o.contains_key("nodes") {
-                o.insert("nodes".into(), serde_json::Value::Array(Vec::new()));
+    if let Some(scenes) = doc.get_mut("scenes").and_then(Value::as_array_mut) {
+        for scene in scenes.iter_mut().filter_map(Value::as_object_mut) {
+            if !scene.contains_key("nodes") {
+                scene.insert("nodes".into(), Value::Array(Vec::new()));
                 given = true;
+            }
+        }
+    }
+    if let Some(animations) = doc.get_mut("animations").and_then(Value::as_array_mut) {
+        for animation in animations.iter_mut() {
+            let Some(channels) = animation.get_mut("channels").and_then(Value::as_array_mut) else {
+                continue;
+            };
+            for channel in channels.iter_mut() {
+                let Some(target) = channel.get_mut("target").and_then(Value::as_object_mut) else {
+                    continue;
+                };
+                if !target.contains_key("node") {
+                    target.insert("node".into(), Value::from(0));
+                    target.insert("path".into(), Value::from(""));
+                    given = true;
+                }
             }
         }
     }

@@ -49,6 +49,62 @@ pub(super) struct Meshes {
     prims: HashMap<(usize, usize), Cached>,
 }
 
+/// Each mesh's number of morph targets, checked as glTF requires: every primitive of a
+/// mesh has the same number, and the mesh's `weights` and those of every node that
+/// instances it have one per target. (Weights of the wrong length would be read from the
+/// wrong targets' places.)
+pub(super) fn morph_target_counts(root: &json::Root) -> Result<Vec<usize>, GltfError> {
+    let mut counts = Vec::with_capacity(root.meshes.len());
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        let targets = |p: &json::mesh::Primitive| p.targets.as_ref().map_or(0, Vec::len);
+        let count = mesh.primitives.first().map_or(0, targets);
+        if let Some((pi, p)) = mesh
+            .primitives
+            .iter()
+            .enumerate()
+            .find(|(_, p)| targets(p) != count)
+        {
+            return Err(bad_prim(
+                m,
+                pi,
+                format!(
+                    "has {} morph targets, but primitive 0 has {count} (every primitive of a mesh must have as many)",
+                    targets(p)
+                ),
+            ));
+        }
+        if let Some(w) = mesh.weights.as_ref().filter(|w| w.len() != count) {
+            return Err(GltfError::BadMesh {
+                mesh: m,
+                reason: format!(
+                    "has {} weights for {count} morph targets (one each, as glTF requires)",
+                    w.len()
+                ),
+            });
+        }
+        counts.push(count);
+    }
+    for (n, node) in root.nodes.iter().enumerate() {
+        let (Some(w), Some(m)) = (&node.weights, node.mesh) else {
+            continue;
+        };
+        // The mesh reference was checked with the node graph.
+        let count = counts.get(m.value()).copied().unwrap_or(0);
+        if w.len() != count {
+            return Err(crate::scene::SceneError::BadNode {
+                node: n,
+                reason: format!(
+                    "has {} weights, but its mesh {} has {count} morph targets (one each, as glTF requires)",
+                    w.len(),
+                    m.value()
+                ),
+            }
+            .into());
+        }
+    }
+    Ok(counts)
+}
+
 fn bad_prim(mesh: usize, primitive: usize, reason: String) -> GltfError {
     GltfError::BadPrimitive {
         mesh,

@@ -336,6 +336,14 @@ pub enum GltfError {
         /// What is wrong.
         reason: String,
     },
+    /// A mesh is malformed as a whole (its primitives disagree, or its `weights`).
+    #[error("mesh {mesh}: {reason}")]
+    BadMesh {
+        /// Mesh index.
+        mesh: usize,
+        /// What is wrong.
+        reason: String,
+    },
     /// A skin is malformed.
     #[error("skin {skin}: {reason}")]
     BadSkin {
@@ -491,7 +499,8 @@ pub fn load_limited(
 
     let parents = nodes::check(&root)?;
     let order = nodes::scene_order(&root, scene_index, &parents)?;
-    let animations = animation::load(&mut data, quantized)?;
+    let morph_targets = mesh::morph_target_counts(&root)?;
+    let animations = animation::load(&mut data, quantized, &morph_targets)?;
     let mut rig = Rig {
         nodes: nodes::rig_nodes(&root),
         roots: (0..root.nodes.len())

@@ -34,6 +34,17 @@ pub(super) fn check(root: &json::Root) -> Result<Vec<Option<usize>>, GltfError> 
                 });
             }
         }
+        // Refused whether or not an animation replaces it, so that whether a file loads
+        // does not depend on the time it is posed at.
+        if let Some(q) = node.rotation.filter(|_| node.matrix.is_none()) {
+            if rig::normalize_quat(DQuat::from_array(q.0.map(f64::from))).is_none() {
+                return Err(crate::scene::SceneError::BadNode {
+                    node: i,
+                    reason: "rotation is a zero or non-finite quaternion".to_string(),
+                }
+                .into());
+            }
+        }
         for c in node.children.iter().flatten() {
             let c = c.value();
             if c >= n {
