@@ -207,6 +207,7 @@ fn goal(o: &Opts) -> Result<bool, String> {
     let geometry = rayd::jobs::Geometry {
         key: rayd::jobs::GeometryKey::new("goal", 1, None),
         triangles: std::sync::Arc::new(scene.triangles),
+        forgets: 0,
     };
     let request = rayd::jobs::TraceRequest {
         accel: rayd::accel::AccelKind::Mbvh8,

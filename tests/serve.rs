@@ -1805,3 +1805,49 @@ fn uploading_the_same_bytes_again_mends_a_damaged_scene() {
     let r = s.req("GET", &format!("/v1/scenes/{id}/geometry"), &[], &[]);
     assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
 }
+
+/// A scene without animation has one pose: traces at any `time=` share its structure
+/// (each time made one of its own, never found again, crowding the cache).
+#[test]
+fn times_of_a_static_scene_share_one_structure() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &[]);
+    let scene = s.upload_sample("Box.glb");
+    let id = scene["id"].as_str().unwrap().to_string();
+    let min: Vec<f32> = serde_json::from_value(scene["bounds"]["min"].clone()).unwrap();
+    let max: Vec<f32> = serde_json::from_value(scene["bounds"]["max"].clone()).unwrap();
+    let body = write_rays(&rays_at(
+        [min[0], min[1], min[2]],
+        [max[0], max[1], max[2]],
+        1000,
+    ));
+    let misses = || {
+        let metrics = String::from_utf8(s.req("GET", "/metrics", &[], &[]).body).unwrap();
+        let line = metrics
+            .lines()
+            .find(|l| l.starts_with("rayd_cache_misses_total "))
+            .map(str::to_string);
+        line.unwrap()
+    };
+    let mut answers = Vec::new();
+    let mut after_first = String::new();
+    for (k, time) in ["", "&time=0.1", "&time=7", "&time=1e9"].iter().enumerate() {
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/trace?accel=mbvh8{time}"),
+            &[("Content-Type", "application/octet-stream")],
+            &body,
+        );
+        assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+        let timing = r.header("server-timing").unwrap().to_string();
+        if k > 0 {
+            assert!(timing.contains("build;dur=0.000"), "{time}: {timing}");
+        }
+        answers.push(r.body);
+        if k == 0 {
+            after_first = misses();
+        }
+    }
+    assert!(answers.iter().all(|a| *a == answers[0]));
+    assert_eq!(misses(), after_first);
+}

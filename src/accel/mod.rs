@@ -273,6 +273,14 @@ pub trait Intersector: Send + Sync {
         Err(AccelError::refit(self.name(), bvh::RefitError::Unsupported))
     }
 
+    /// About how much slower this structure traces than it did when it was built, after
+    /// the refits since (its surface-area cost now over its cost as built): a refit over
+    /// positions that moved triangles far from where the build grouped them can slow a
+    /// trace a hundredfold. 1 for structures that are never refitted.
+    fn refit_slowdown(&self) -> f64 {
+        1.0
+    }
+
     /// Traversal steps and triangle tests per `closest` ray over `rays` (Áfra 2013,
     /// Table 4), for cores whose traversal counts them; run on the calling thread, untimed,
     /// so that `rayd bench` can print them beside the rates. `None` for the others.

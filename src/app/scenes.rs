@@ -433,9 +433,7 @@ impl App {
         let unfinished = self.store().delete_scene(id).await?;
         self.stop_deleted(&unfinished);
         self.inner.scenes.forget(id);
-        self.engine().cache().forget_scene(id);
-        self.engine().textures().forget_scene(id);
-        self.engine().lights().forget_scene(id);
+        self.engine().forget_scene(id);
         self.inner.thumbnails.forget(id);
         Ok(())
     }
@@ -576,6 +574,8 @@ impl App {
         version: Option<u32>,
         time: Option<f64>,
     ) -> Result<(Geometry, Cameras), AppError> {
+        // Before anything is read: see `Geometry::forgets`.
+        let forgets = self.engine().forgets();
         let latest = self.store().get_scene(id).await?.latest_version as u32;
         let named = version.is_some();
         let version = version.unwrap_or(latest);
@@ -597,15 +597,31 @@ impl App {
         }
         let key = GeometryKey::new(id, version, time);
         if let Some((triangles, cameras)) = self.inner.scenes.geometry(&key) {
-            return Ok((Geometry { key, triangles }, cameras));
+            return Ok((
+                Geometry {
+                    key,
+                    triangles,
+                    forgets,
+                },
+                cameras,
+            ));
         }
         let loaded = self.loaded(id).await?;
         let mut cameras = Arc::new(loaded.scene.cameras.clone());
         // Version 1 at rest (or at any time, without a rig) is the parse's own positions:
-        // no copy, and no entry of its own beside the scene's.
+        // no copy, and no entry of its own beside the scene's. Without a rig every time
+        // is the static pose, under its key: one structure serves them all.
         if version == 1 && (time.is_none() || loaded.scene.rig.is_none()) {
             let triangles = Arc::clone(&loaded.static_pose);
-            return Ok((Geometry { key, triangles }, cameras));
+            let key = GeometryKey::new(id, 1, None);
+            return Ok((
+                Geometry {
+                    key,
+                    triangles,
+                    forgets,
+                },
+                cameras,
+            ));
         }
         let tris: Arc<Vec<Triangle>> = if let (1, Some(t)) = (version, time) {
             // The scene's rig re-poses it: no second parse of the file.
@@ -647,6 +663,7 @@ impl App {
             Geometry {
                 key,
                 triangles: tris,
+                forgets,
             },
             cameras,
         ))

@@ -74,6 +74,7 @@ pub(super) fn run(a: TraceArgs) -> Result<serde_json::Value, CliError> {
     let geometry = Geometry {
         key: GeometryKey::new(&a.scene.display().to_string(), 1, a.core.time),
         triangles: Arc::new(scene.triangles),
+        forgets: engine.forgets(),
     };
     let request = TraceRequest {
         query: a.query,

@@ -93,18 +93,23 @@ impl<K: Eq + std::hash::Hash + Clone, V: Clone> Counted<K, V> {
     /// `bytes` fit the budget. Made outside the lock, so that other keys' lookups go on
     /// meanwhile; concurrent misses of one key both make it, and the second to finish
     /// replaces the first's entry with an equal one.
+    /// `keep` is asked under the lock, after making: whether the entry may still be kept.
     fn get_or_make<E>(
         &self,
         key: K,
         make: impl FnOnce() -> Result<V, E>,
         bytes: impl FnOnce(&V) -> usize,
+        keep: impl FnOnce() -> bool,
     ) -> Result<V, E> {
         if let Some(v) = self.get(&key) {
             return Ok(v);
         }
         let v = make()?;
         let size = bytes(&v);
-        self.lock().insert(key, v.clone(), size);
+        let mut lru = self.lock();
+        if keep() {
+            lru.insert(key, v.clone(), size);
+        }
         Ok(v)
     }
 
@@ -160,8 +165,22 @@ impl StructureCache {
     /// Keeps `accel` under `key`, evicting least recently used entries to stay within the
     /// budget. A structure larger than the whole budget is not kept.
     pub fn insert(&self, key: StructureKey, accel: Arc<dyn Intersector>) {
+        self.insert_if(key, accel, || true);
+    }
+
+    /// [`StructureCache::insert`] if `keep`, asked under the cache's lock (so that a
+    /// [`StructureCache::forget_scene`] cannot come between the answer and the insert).
+    pub fn insert_if(
+        &self,
+        key: StructureKey,
+        accel: Arc<dyn Intersector>,
+        keep: impl FnOnce() -> bool,
+    ) {
         let bytes = accel.bytes();
-        self.0.lock().insert(key, accel, bytes);
+        let mut lru = self.0.lock();
+        if keep() {
+            lru.insert(key, accel, bytes);
+        }
     }
 
     /// Drops every structure of `scene` (the scene was deleted).
@@ -196,8 +215,12 @@ impl TextureCache {
         scene: &str,
         decode: impl FnOnce() -> Result<TextureSet, E>,
     ) -> Result<Arc<TextureSet>, E> {
-        self.0
-            .get_or_make(Arc::from(scene), || decode().map(Arc::new), |t| t.bytes())
+        self.0.get_or_make(
+            Arc::from(scene),
+            || decode().map(Arc::new),
+            |t| t.bytes(),
+            || true,
+        )
     }
 
     /// Drops scene `scene`'s textures (the scene was deleted).
@@ -235,14 +258,16 @@ impl LightCache {
         LightCache(Counted::new(budget))
     }
 
-    /// The table for `key`: a held one (a hit) or `build`'s (a miss), kept when it fits.
+    /// The table for `key`: a held one (a hit) or `build`'s (a miss), kept when it fits
+    /// and `keep` (asked under the cache's lock after the build) says it may be.
     pub fn get_or_build<E>(
         &self,
         key: LightKey,
         build: impl FnOnce() -> Result<LightSampler, E>,
+        keep: impl FnOnce() -> bool,
     ) -> Result<Arc<LightSampler>, E> {
         self.0
-            .get_or_make(key, || build().map(Arc::new), |t| t.bytes())
+            .get_or_make(key, || build().map(Arc::new), |t| t.bytes(), keep)
     }
 
     /// Drops scene `scene`'s tables (the scene was deleted).

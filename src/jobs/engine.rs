@@ -112,6 +112,8 @@ pub struct Engine {
     /// slow body must move the prediction at once, which an average of rates would bury
     /// under the fast ones.
     upload_cost: AtomicU64,
+    /// How many times a scene has been forgotten ([`Engine::forget_scene`]).
+    forgets: AtomicU64,
 }
 
 /// The upload rate assumed until a large body has been measured: loopback on the
@@ -141,7 +143,30 @@ impl Engine {
             sched: Scheduler::new(options.max_queued, options.max_running),
             options,
             upload_cost: AtomicU64::new((1.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).to_bits()),
+            forgets: AtomicU64::new(0),
         })
+    }
+
+    /// Drops scene `id`'s structures, textures and light tables (the scene was deleted),
+    /// and counts the forgetting first, so that structures and tables still being made
+    /// over its positions are not kept when they are done ([`Geometry::forgets`]).
+    pub fn forget_scene(&self, id: &str) {
+        self.forgets.fetch_add(1, Ordering::SeqCst);
+        self.cache.forget_scene(id);
+        self.textures.forget_scene(id);
+        self.lights.forget_scene(id);
+    }
+
+    /// How many times a scene has been forgotten: read it before resolving the positions
+    /// a job will trace, into [`Geometry::forgets`].
+    pub fn forgets(&self) -> u64 {
+        self.forgets.load(Ordering::SeqCst)
+    }
+
+    /// Whether nothing has been forgotten since `geometry` was resolved, so that what is
+    /// made over it may be kept.
+    pub(super) fn keeps(&self, geometry: &Geometry) -> bool {
+        self.forgets.load(Ordering::SeqCst) == geometry.forgets
     }
 
     /// Notes that a request body of `bytes` took `seconds` to arrive (from its first piece
@@ -342,7 +367,9 @@ impl Engine {
         let t0 = Instant::now();
         let options = self.build_options(quality, precision);
         let geometry_triangles = geometry.triangles.len();
-        let refit_pays = || {
+        // Whether a refit whose traces are `slowdown` times slower than a fresh tree's
+        // (beyond the model's usual drift) finishes first.
+        let refit_pays = |slowdown: f64| {
             if update != Update::Auto {
                 return update == Update::Refit;
             }
@@ -357,15 +384,23 @@ impl Engine {
                 arrival: 0.0,
             };
             let refit = auto::predict(AccelKind::Mbvh8, &job(Known::Refittable));
+            let trace = auto::predict(AccelKind::Mbvh8, &job(Known::Built));
             let build = auto::predict(AccelKind::Mbvh8, &job(Known::New));
-            matches!((refit, build), (Some(r), Some(b)) if r < b)
+            matches!((refit, trace, build), (Some(r), Some(t), Some(b))
+                if r + t * (slowdown - 1.0).max(0.0) < b)
         };
         let mut made: Option<(Box<dyn Intersector>, Source)> = None;
         if let Some(old) = self.cache.refittable(&key) {
-            if refit_pays() {
-                // A refused refit (a triangle turned degenerate, say) falls back to a build.
+            if refit_pays(1.0) {
+                // A refused refit (a triangle turned degenerate, say) falls back to a build,
+                // and so does one whose boxes swelled so far (triangles moved far from
+                // where the tree grouped them) that a build now finishes first: its
+                // traces could be a hundred times slower, and every later version would
+                // be refitted from it.
                 if let Ok(copy) = old.refit_copy(&geometry.triangles) {
-                    made = Some((copy, Source::Refitted));
+                    if refit_pays(copy.refit_slowdown()) {
+                        made = Some((copy, Source::Refitted));
+                    }
                 }
             }
         }
@@ -378,7 +413,8 @@ impl Engine {
         };
         let build_seconds = seconds_since(t0);
         let accel: Arc<dyn Intersector> = Arc::from(accel);
-        self.cache.insert(key, Arc::clone(&accel));
+        self.cache
+            .insert_if(key, Arc::clone(&accel), || self.keeps(geometry));
         Ok(Prepared {
             accel,
             build_seconds,
@@ -390,6 +426,8 @@ impl Engine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geometry::Triangle;
+    use crate::jobs::GeometryKey;
 
     #[test]
     fn measured_bodies_move_the_expected_arrival() {
@@ -415,5 +453,109 @@ mod tests {
         }
         assert!((e.upload_rate() / 20e6 - 1.0).abs() < 0.01);
         assert!((e.arrival(rays) - 0.419).abs() < 0.01);
+    }
+
+    /// A grid of `n`² unit squares (two triangles each) in the z = 0 plane, at `version`.
+    fn grid(n: usize, version: u32, forgets: u64) -> Geometry {
+        let mut tris = Vec::new();
+        for i in 0..n {
+            for j in 0..n {
+                let (x, y) = (i as f32, j as f32);
+                let [a, b, c, d] = [[x, y], [x + 1.0, y], [x, y + 1.0], [x + 1.0, y + 1.0]]
+                    .map(|[x, y]| [x, y, 0.0]);
+                tris.push(Triangle { v: [a, b, c] });
+                tris.push(Triangle { v: [b, d, c] });
+            }
+        }
+        Geometry {
+            key: GeometryKey::new("grid", version, None),
+            triangles: Arc::new(tris),
+            forgets,
+        }
+    }
+
+    fn prepare(e: &Engine, g: &Geometry, rays: usize) -> Prepared {
+        e.pool
+            .install(|| {
+                e.structure(
+                    g,
+                    AccelKind::Mbvh8,
+                    BuildQuality::Sah,
+                    Precision::Watertight,
+                    rays,
+                    1,
+                    Update::Auto,
+                )
+            })
+            .unwrap()
+    }
+
+    /// A structure finished after its scene was forgotten (deleted) is not kept: the same
+    /// id uploaded again could have other positions under the same version number.
+    #[test]
+    fn a_structure_made_over_a_forgotten_scene_is_not_kept() {
+        let e = Engine::new(EngineOptions {
+            threads: 1,
+            ..Default::default()
+        })
+        .unwrap();
+        let before = grid(8, 2, e.forgets());
+        e.forget_scene("grid");
+        assert_eq!(prepare(&e, &before, 1000).source, Source::Built);
+        assert_eq!(e.cache().stats().entries, 0);
+        // Positions resolved after the forgetting are kept, and found again.
+        let after = grid(8, 2, e.forgets());
+        assert_eq!(prepare(&e, &after, 1000).source, Source::Built);
+        assert_eq!(prepare(&e, &after, 1000).source, Source::Cached);
+    }
+
+    /// A new version that moves the triangles a little is refitted; one that moves them
+    /// far from where the tree grouped them (here: every triangle's positions handed to
+    /// another, far away) is built anew, and later versions refit the new tree.
+    #[test]
+    fn a_refit_that_swells_the_tree_is_built_instead() {
+        let e = Engine::new(EngineOptions {
+            threads: 1,
+            ..Default::default()
+        })
+        .unwrap();
+        let rays = 1 << 16;
+        let v1 = grid(64, 1, 0);
+        assert_eq!(prepare(&e, &v1, rays).source, Source::Built);
+        let nudge = |g: &Geometry, version: u32| {
+            let mut tris = (*g.triangles).clone();
+            for t in &mut tris {
+                for v in &mut t.v {
+                    v[2] += 0.01 * v[0];
+                }
+            }
+            Geometry {
+                key: GeometryKey::new("grid", version, None),
+                triangles: Arc::new(tris),
+                forgets: 0,
+            }
+        };
+        let v2 = nudge(&v1, 2);
+        let p2 = prepare(&e, &v2, rays);
+        assert_eq!(p2.source, Source::Refitted);
+        assert!(
+            p2.accel.refit_slowdown() < 1.1,
+            "{}",
+            p2.accel.refit_slowdown()
+        );
+        // Neighbouring ids get positions 7919 triangles apart (7919 is prime, the count
+        // a power of two).
+        let n = v2.triangles.len();
+        let shuffled: Vec<Triangle> = (0..n).map(|i| v2.triangles[i * 7919 % n]).collect();
+        let v3 = Geometry {
+            key: GeometryKey::new("grid", 3, None),
+            triangles: Arc::new(shuffled),
+            forgets: 0,
+        };
+        let p3 = prepare(&e, &v3, rays);
+        assert_eq!(p3.source, Source::Built);
+        assert_eq!(p3.accel.refit_slowdown(), 1.0);
+        let v4 = nudge(&v3, 4);
+        assert_eq!(prepare(&e, &v4, rays).source, Source::Refitted);
     }
 }

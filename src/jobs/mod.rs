@@ -106,6 +106,13 @@ pub struct Geometry {
     pub key: GeometryKey,
     /// The triangles.
     pub triangles: Arc<Vec<Triangle>>,
+    /// [`engine::Engine::forgets`] read before these positions were resolved: a
+    /// structure or light table made over them is kept only if no scene has been
+    /// forgotten since. A scene deleted while a job built over it, then uploaded again
+    /// (the same id: ids are content hashes) with other positions under the same version
+    /// number, would otherwise find the deleted scene's structure under its key. 0 where
+    /// nothing is ever forgotten (the command line).
+    pub forgets: u64,
 }
 
 /// Errors of jobs: everything a caller may need to tell its user, with the place.

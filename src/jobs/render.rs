@@ -214,6 +214,7 @@ impl FrameInput {
             geometry: Geometry {
                 key,
                 triangles: Arc::new(scene.triangles.clone()),
+                forgets: 0,
             },
             cameras: Arc::new(scene.cameras.clone()),
             surfaces,
@@ -371,9 +372,11 @@ impl Engine {
                         sky: options.sky.map(f32::to_bits),
                         light_sampling: options.light_sampling,
                     };
-                    Some(self.lights().get_or_build(key, || {
-                        crate::render::light_table(&g.triangles, surfaces, &options, &waves)
-                    })?)
+                    Some(self.lights().get_or_build(
+                        key,
+                        || crate::render::light_table(&g.triangles, surfaces, &options, &waves),
+                        || self.keeps(g),
+                    )?)
                 }
                 _ => None,
             };

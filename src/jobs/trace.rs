@@ -503,6 +503,7 @@ mod tests {
         Geometry {
             key: super::super::GeometryKey::new("t", 1, None),
             triangles: Arc::new(tris),
+            forgets: 0,
         }
     }
 

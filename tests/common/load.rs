@@ -503,6 +503,7 @@ pub fn expected_hits(
     let geometry = Geometry {
         key: GeometryKey::new(name, 1, None),
         triangles: Arc::new(triangles),
+        forgets: engine.forgets(),
     };
     let (body, _) = engine
         .trace(&geometry, rays, &trace_request(), 0, &engine.detached())

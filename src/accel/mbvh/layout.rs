@@ -102,6 +102,51 @@ pub struct TravTree<const N: usize, T> {
     /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
     /// leave exactly these out.
     pub excluded: Vec<u32>,
+    /// [`TravTree::cost`] as built; refits keep it, to measure how far they drifted.
+    pub built_cost: f64,
+}
+
+impl<const N: usize, T> TravTree<N, T> {
+    /// The tree's surface-area cost over its root's area: each child box's half area,
+    /// once for an inner child and once a pack for a leaf. A refit over positions that
+    /// moved triangles far from where the tree grouped them swells the boxes, and the
+    /// cost with them, roughly as its traces slow down. 0 for an empty or flat tree.
+    pub fn cost(&self) -> f64 {
+        let Some(root) = self.nodes.first() else {
+            return 0.0;
+        };
+        let area = bvh::half_area(&root.bounds());
+        if !(area > 0.0 && area.is_finite()) {
+            return 0.0;
+        }
+        let mut sum = 0.0;
+        for n in &self.nodes {
+            for lane in 0..N {
+                let c = n.child[lane];
+                if c == EMPTY_LANE {
+                    continue;
+                }
+                let weight = if c >= 0 {
+                    1.0
+                } else {
+                    leaf_lanes(c).1.div_ceil(8) as f64
+                };
+                sum += bvh::half_area(&n.lane_box(lane)) * weight;
+            }
+        }
+        sum / area
+    }
+
+    /// [`TravTree::cost`] now over the cost as built: about how much slower the tree
+    /// traces after its refits than it did when built (1 when either cost is 0).
+    pub fn slowdown(&self) -> f64 {
+        let now = self.cost();
+        if self.built_cost > 0.0 && now > 0.0 {
+            now / self.built_cost
+        } else {
+            1.0
+        }
+    }
 }
 
 impl<const N: usize, T: TriTest> TravTree<N, T> {
@@ -217,14 +262,17 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         triangles: usize,
         excluded: Vec<u32>,
     ) -> Self {
-        TravTree {
+        let mut tree = TravTree {
             scale: nodes.first().map_or(0.0, |n| n.bounds().max_abs()),
             depth: depth(&nodes),
             nodes,
             packs,
             triangles,
             excluded,
-        }
+            built_cost: 0.0,
+        };
+        tree.built_cost = tree.cost();
+        tree
     }
 
     /// Takes new positions for the same triangles (same count, same ids) in place,

@@ -268,4 +268,12 @@ where
         copy.refit(triangles)?;
         Ok(Box::new(copy))
     }
+
+    /// [`TravTree::slowdown`].
+    fn refit_slowdown(&self) -> f64 {
+        match &self.trees {
+            Trees::Fast(t) => t.slowdown(),
+            Trees::Watertight(t) => t.slowdown(),
+        }
+    }
 }

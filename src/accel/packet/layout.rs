@@ -41,6 +41,41 @@ pub struct PacketTree<T> {
     /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
     /// leave exactly these out.
     pub excluded: Vec<u32>,
+    /// [`PacketTree::cost`] as built; refits keep it, to measure how far they drifted.
+    pub built_cost: f64,
+}
+
+impl<T> PacketTree<T> {
+    /// The tree's surface-area cost over its root's area, each node's half area counted
+    /// once (see `mbvh::layout::TravTree::cost`). 0 for an empty or flat tree.
+    pub fn cost(&self) -> f64 {
+        let Some(root) = self.nodes.first() else {
+            return 0.0;
+        };
+        let node_box = |n: &PacketNode| Aabb {
+            min: n.min,
+            max: n.max,
+        };
+        let area = bvh::half_area(&node_box(root));
+        if !(area > 0.0 && area.is_finite()) {
+            return 0.0;
+        }
+        self.nodes
+            .iter()
+            .map(|n| bvh::half_area(&node_box(n)))
+            .sum::<f64>()
+            / area
+    }
+
+    /// [`PacketTree::cost`] now over the cost as built (1 when either is 0).
+    pub fn slowdown(&self) -> f64 {
+        let now = self.cost();
+        if self.built_cost > 0.0 && now > 0.0 {
+            now / self.built_cost
+        } else {
+            1.0
+        }
+    }
 }
 
 impl<T: TriTest> PacketTree<T> {
@@ -74,13 +109,16 @@ impl<T: TriTest> PacketTree<T> {
                 }
             })
             .collect();
-        PacketTree {
+        let mut out = PacketTree {
             nodes,
             packs,
             scale: tree.bounds().max_abs(),
             triangles: tree.triangle_count(),
             excluded: tree.excluded().to_vec(),
-        }
+            built_cost: 0.0,
+        };
+        out.built_cost = out.cost();
+        out
     }
 
     /// Takes new positions for the same triangles in place, as

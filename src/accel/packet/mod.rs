@@ -155,4 +155,12 @@ impl Intersector for Bvh2Packet {
         copy.refit(triangles)?;
         Ok(Box::new(copy))
     }
+
+    /// [`PacketTree::slowdown`].
+    fn refit_slowdown(&self) -> f64 {
+        match &self.trees {
+            Trees::Fast(t) => t.slowdown(),
+            Trees::Watertight(t) => t.slowdown(),
+        }
+    }
 }
