@@ -143,8 +143,13 @@ fn check_hit(kind: AccelKind, precision: Precision, r: &Ray, tris: &[Triangle], 
 /// Traces `rays` with every core in `precision`; checks each core against `brute` (bit for
 /// bit, except `embree`) and every hit against the bounds. Returns `brute`'s hits.
 fn all_cores(precision: Precision, tris: &[Triangle], rays: &[Ray]) -> Vec<Hit> {
+    cores(&kinds(), precision, tris, rays)
+}
+
+/// [`all_cores`] for the cores `kinds` only.
+fn cores(kinds: &[AccelKind], precision: Precision, tris: &[Triangle], rays: &[Ray]) -> Vec<Hit> {
     let reference = trace(AccelKind::Brute, precision, tris, rays);
-    for kind in kinds() {
+    for &kind in kinds {
         let hits = if kind == AccelKind::Brute {
             reference.clone()
         } else {
@@ -1307,4 +1312,47 @@ fn triangles_whose_products_leave_f32s_range_are_still_hit() {
         "outside the tiny triangle: {:?}",
         hits[2]
     );
+}
+
+/// Directions of 1e-39–1e-35 (hits at t up to ~1e39, some beyond f32's range) and a scene
+/// at 2^120: the trees' fused slab test (`plane·inv − org·inv`) overflowed its products
+/// long before the distances did, and `mbvh4`/`mbvh8` missed hits every other core found;
+/// `bvh2`'s reciprocals of subnormal components were infinite (`mbvh::ray`, "Tiny
+/// directions"). DACRT's filter still misses some of the tiny directions' hits
+/// (`proto/semantics.md`, known shortfall): it is checked on the huge scene only.
+#[test]
+fn tiny_directions_and_huge_scenes_keep_the_trees_exact() {
+    let trees: Vec<AccelKind> = kinds()
+        .into_iter()
+        .filter(|k| !matches!(k, AccelKind::Dacrt | AccelKind::DacrtSampled))
+        .collect();
+    let mut rng = Rng(0x7153);
+    let sphere = icosphere(3, 1.0, [0.2, -0.1, 0.3]);
+    let targets = edge_and_vertex_targets(&sphere);
+    let mut rays = Vec::new();
+    for scale in [3e-39f32, 1e-38, 1.2e-38, 1e-36, 4e-35] {
+        for r in inward_rays(&mut rng, &targets[..200], [0.2, -0.1, 0.3], 4.0) {
+            let dir = r.dir.map(|d| d * scale);
+            if dir.iter().any(|&d| d != 0.0) {
+                rays.push(ray(r.org, dir, 0.0, f32::INFINITY));
+            }
+        }
+    }
+    let hits = cores(&trees, Precision::Watertight, &sphere, &rays);
+    assert!(hits.iter().filter(|h| h.t.is_finite()).count() > rays.len() / 4);
+    // A sphere of radius 2^90 about a centre 2^100 away, rays of |dir| ~2^-34 from 3
+    // radii out: hits at t ~2^125, but |origin| · |1/dir| is ~2^134.
+    let big = 2f64.powi(100);
+    let centre = [0.5 * big, -0.75 * big, big];
+    let sphere = icosphere(2, 2f64.powi(90), centre);
+    let c = centre.map(|x| x as f32);
+    let mut rays = Vec::new();
+    for p in edge_and_vertex_targets(&sphere).into_iter().take(600) {
+        let org: [f32; 3] = std::array::from_fn(|k| c[k] + 3.0 * (p[k] - c[k]));
+        let dir = std::array::from_fn(|k| (p[k] - org[k]) * 2f32.powi(-125));
+        rays.push(ray(org, dir, 0.0, f32::INFINITY));
+    }
+    let hits = all_cores(Precision::Watertight, &sphere, &rays);
+    let hit = hits.iter().filter(|h| h.t.is_finite()).count();
+    assert!(hit > rays.len() / 2, "{hit} of {}", rays.len());
 }

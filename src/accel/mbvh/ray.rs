@@ -41,6 +41,20 @@
 //! box hit lies within the scene, i.e. at `t <= (scale + |org|)/max|dir|`, where the tilt
 //! has moved the ray by at most `2^-21·(scale + |org|) = δ/4`: well inside the growth.
 
+//!
+//! # Tiny directions
+//!
+//! The fused slab test computes a plane's distance as `plane·inv − org·inv`, whose products
+//! overflow f32 when `|inv|` times the scene's or the origin's scale passes 2^128, long
+//! before the distance itself does: a direction of 1e-38 (inv ~1e38) in a scene a few
+//! units wide overflowed every box's distances to ±inf or NaN, and the tree missed hits at
+//! finite t (2.8e38) that `brute` found. For such directions ([`box_exponent`]) the box
+//! test runs in units of `2^e·t`: the direction is scaled by `2^e` first (exact: a power of
+//! two), so every distance is the unscaled one times `2^-e`, exactly where neither
+//! overflows nor is subnormal, and the bound it is compared with, the closest hit's t, is
+//! scaled the same way and rounded up ([`SlabConsts::box_t`]). Other rays have `e = 0` and
+//! run as before.
+
 use crate::accel::triangle::PreparedRay;
 use crate::simd::{FloatV, IntV, MaskV, Select, Simd};
 
@@ -68,18 +82,52 @@ pub struct BoxRay {
     /// Start of the interval boxes are tested on: always `+0`, not the ray's `tmin` (see
     /// "The interval start" in the module docs); the triangle test applies `tmin`.
     pub tmin: f32,
-    /// Interval end, `+0` for `-0`.
+    /// Interval end, `+0` for `-0`, in the ray's own t.
     pub tmax: f32,
+    /// The `e` of "Tiny directions" (module docs): `inv` is that of the direction times
+    /// `2^e`, so box distances measure `2^-e·t` ([`BoxRay::box_t`]).
+    pub exp: i32,
+}
+
+/// `t` in units of `2^-e·t`, rounded up (`t` itself for `e = 0`).
+#[inline(always)]
+fn scaled_t(t: f32, exp: i32) -> f32 {
+    if exp == 0 {
+        return t;
+    }
+    let exact = f64::from(t) * 2f64.powi(-exp);
+    let x = exact as f32;
+    if f64::from(x) < exact {
+        x.next_up()
+    } else {
+        x
+    }
 }
 
 impl BoxRay {
+    /// `t` in the units the box test measures, rounded up, so that a box is never pruned
+    /// against a bound smaller than the hit's.
+    #[inline(always)]
+    pub fn box_t(&self, t: f32) -> f32 {
+        scaled_t(t, self.exp)
+    }
+
     /// The constants of `r` in a scene whose coordinates are at most `scale` in magnitude.
     #[inline(always)]
     pub fn new(r: &PreparedRay, scale: f32) -> BoxRay {
         let o = r.org;
+        let exp = box_exponent(
+            r.dir.iter().fold(0.0f32, |m, x| m.max(x.abs())),
+            scale,
+            o.iter().fold(0.0f32, |m, x| m.max(x.abs())),
+        );
+        let d = if exp == 0 {
+            r.dir
+        } else {
+            scaled_dir(r.dir, exp)
+        };
         let big = o.iter().fold(scale, |m, x| m.max(x.abs()));
         let delta = SLACK * (scale + big);
-        let d = r.dir;
         let floor = TILT * d.iter().fold(0.0f32, |m, x| m.max(x.abs()));
         let safe = |x: f32| {
             let a = x.abs().max(floor);
@@ -97,6 +145,7 @@ impl BoxRay {
             // x + 0.0 turns -0 into +0 and leaves everything else as it is.
             tmin: 0.0,
             tmax: r.tmax + 0.0,
+            exp,
         }
     }
 
@@ -133,6 +182,27 @@ impl BoxRay {
     }
 }
 
+/// The `e` of "Tiny directions" (module docs) for a ray whose largest |direction|
+/// component is `dir_max` and whose origin's largest |coordinate| is `org_max`, in a scene
+/// of coordinates up to `scale`: 0 unless the direction is smaller than `2^-100` of the
+/// scale, else the least that lifts it to that. Then `|inv|` ≤ 2^21 / (`2^-100`·scale)
+/// keeps the products of the fused test below 2^127.
+pub fn box_exponent(dir_max: f32, scale: f32, org_max: f32) -> i32 {
+    let need = (f64::from(scale) + f64::from(org_max)) * 2f64.powi(-100);
+    let a = f64::from(dir_max);
+    if a >= need || a == 0.0 || !need.is_finite() {
+        0
+    } else {
+        (need / a).log2().ceil() as i32
+    }
+}
+
+/// `dir` times `2^e` (exact: a power of two, the result normal).
+fn scaled_dir(dir: [f32; 3], e: i32) -> [f32; 3] {
+    let k = 2f64.powi(e);
+    dir.map(|x| (f64::from(x) * k) as f32)
+}
+
 /// [`BoxRay`]'s constants in the form the fused slab test uses, per axis (lane 3 unused):
 /// `1/dir`, `-(near origin · inv)`, `-(far origin · inv)`, and the direction's sign bits.
 /// Bit-identical to deriving them from [`BoxRay`] (same operations in the same order).
@@ -148,19 +218,35 @@ pub struct SlabConsts {
     pub neg: u32,
     /// Start of the interval boxes are tested on: `+0` (see [`BoxRay::tmin`]).
     pub tmin: f32,
-    /// Interval end (`-0` made `+0`).
+    /// Interval end (`-0` made `+0`), in the ray's own t.
     pub tmax: f32,
+    /// The `e` of "Tiny directions" (module docs): the constants above measure `2^-e·t`.
+    pub exp: i32,
 }
 
 impl SlabConsts {
+    /// `t` in the units the box test measures (`2^-e·t`), rounded up, so that a box is
+    /// never pruned against a bound smaller than the hit's.
+    #[inline(always)]
+    pub fn box_t(&self, t: f32) -> f32 {
+        scaled_t(t, self.exp)
+    }
+
     /// Computes the constants 4-wide (a third of the instructions of the scalar route,
     /// which matters once per ray).
     #[inline(always)]
     pub fn new<S: Simd>(s: S, r: &PreparedRay, scale: f32) -> SlabConsts {
         let o = s.load_f4(&[r.org[0], r.org[1], r.org[2], 0.0]);
         let d = s.load_f4(&[r.dir[0], r.dir[1], r.dir[2], 0.0]);
-        let a = d.abs();
         let big = o.abs().hmax();
+        let exp = box_exponent(d.abs().hmax(), scale, big);
+        let d = if exp == 0 {
+            d
+        } else {
+            let [x, y, z] = scaled_dir(r.dir, exp);
+            s.load_f4(&[x, y, z, 0.0])
+        };
+        let a = d.abs();
         let big = if big > scale { big } else { scale };
         let delta = s.splat_f4(SLACK * (scale + big));
         let neg = d.to_bits().lt(s.splat_i4(0));
@@ -176,7 +262,13 @@ impl SlabConsts {
             neg: neg.bitmask() & 7,
             tmin: 0.0,
             tmax: r.tmax + 0.0,
+            exp,
         }
+    }
+
+    /// The same constants from the scalar [`BoxRay`] of `r` (the reference).
+    pub fn reference(r: &PreparedRay, scale: f32) -> SlabConsts {
+        SlabConsts::from_box_ray(&BoxRay::new(r, scale))
     }
 
     /// The same constants from the scalar [`BoxRay`] (the reference).
@@ -199,6 +291,7 @@ impl SlabConsts {
             neg: (0..3).map(|k| u32::from(b.neg[k]) << k).sum(),
             tmin: b.tmin,
             tmax: b.tmax,
+            exp: b.exp,
         }
     }
 }
@@ -224,7 +317,7 @@ mod tests {
     #[test]
     fn simd_constants_equal_the_scalar_reference() {
         let vals = [
-            0.0f32, -0.0, 1.0, -1.0, 3.5, -1e-30, 1e-30, 7e5, -2.5e-3, 1e20,
+            0.0f32, -0.0, 1.0, -1.0, 3.5, -1e-30, 1e-30, 7e5, -2.5e-3, 1e20, 3e-39, -1e-38,
         ];
         let mut cases = Vec::new();
         for (i, &a) in vals.iter().enumerate() {
@@ -245,7 +338,7 @@ mod tests {
         }
         let want: Vec<SlabConsts> = cases
             .iter()
-            .map(|(r, sc)| SlabConsts::from_box_ray(&BoxRay::new(r, *sc)))
+            .map(|(r, sc)| SlabConsts::reference(r, *sc))
             .collect();
         for b in Backend::supported() {
             let got = dispatch(b, Consts(cases.clone()));
@@ -255,8 +348,8 @@ mod tests {
                 assert_eq!(bits(&g.near_oi), bits(&w.near_oi), "{b} {c:?}");
                 assert_eq!(bits(&g.far_oi), bits(&w.far_oi), "{b} {c:?}");
                 assert_eq!(
-                    (g.neg, g.tmin.to_bits(), g.tmax.to_bits()),
-                    (w.neg, w.tmin.to_bits(), w.tmax.to_bits()),
+                    (g.neg, g.tmin.to_bits(), g.tmax.to_bits(), g.exp),
+                    (w.neg, w.tmin.to_bits(), w.tmax.to_bits(), w.exp),
                     "{b} {c:?}"
                 );
             }

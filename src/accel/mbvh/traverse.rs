@@ -151,6 +151,8 @@ where
     let nodes = &tree.nodes[..];
     let packs = &tree.packs[..];
     let mut best_t = br.tmax;
+    // The bound boxes are tested against, in the box test's units (`SlabConsts::box_t`).
+    let mut best_box = br.box_t(best_t);
     let mut best_id = u32::MAX;
     let (mut best_u, mut best_v) = (0.0f32, 0.0f32);
     // The winner's pack and lane, for its reported t (`TriTest::finish_t`).
@@ -162,7 +164,7 @@ where
         if cur >= 0 {
             let node = &nodes[cur as usize];
             counts.node();
-            let (mut mask, dist) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, best_t);
+            let (mut mask, dist) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, best_box);
             if mask != 0 {
                 let child = |i: usize| node.child[i & (N - 1)];
                 let key = |i: usize| stack::key(dist[i & 7], child(i));
@@ -247,6 +249,7 @@ where
                     (best_p, best_lane) = (p, lane);
                 }
                 tmax8 = s.splat_f8(best_t);
+                best_box = br.box_t(best_t);
                 if rest == 0 {
                     break;
                 }
@@ -254,7 +257,7 @@ where
             }
         }
         // Pop the nearest entry that is not beyond the closest hit.
-        let limit = best_t.to_bits();
+        let limit = best_box.to_bits();
         loop {
             if sp == 0 {
                 break 'trav;
@@ -302,13 +305,14 @@ where
     let nodes = &tree.nodes[..];
     let packs = &tree.packs[..];
     let tmax = br.tmax;
+    let tmax_box = br.box_t(tmax);
     let tmax8 = s.splat_f8(tmax);
     let mut sp = 0usize;
     let mut cur: i32 = 0;
     loop {
         if cur >= 0 {
             let node = &nodes[cur as usize];
-            let (mut mask, _) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, tmax);
+            let (mut mask, _) = <Lanes<N> as SlabTest<N>>::test(s, &vr, node, tmax_box);
             if mask != 0 {
                 cur = node.child[next_bit(&mut mask) & (N - 1)];
                 while mask != 0 {

@@ -80,7 +80,16 @@ pub fn packet<S: Simd, T: TriTest>(
             PreparedRay8::new(s, &pr[2]),
             PreparedRay8::new(s, &pr[3]),
         ];
-        let mut tfar = s.load_f4(&best_t);
+        // The bounds boxes are tested against, in the box test's units (`BoxRay::box_t`).
+        let box_t = |best_t: &[f32; PACKET]| {
+            s.load_f4(&[
+                br[0].box_t(best_t[0]),
+                br[1].box_t(best_t[1]),
+                br[2].box_t(best_t[2]),
+                br[3].box_t(best_t[3]),
+            ])
+        };
+        let mut tfar = box_t(&best_t);
         let nodes = &tree.nodes[..];
         let packs = &tree.packs[..];
         let mut i = 0usize;
@@ -144,7 +153,7 @@ pub fn packet<S: Simd, T: TriTest>(
                 break;
             }
             if changed {
-                tfar = s.load_f4(&best_t);
+                tfar = box_t(&best_t);
             }
         }
     }
