@@ -184,13 +184,27 @@ impl BoxRay {
 
 /// The `e` of "Tiny directions" (module docs) for a ray whose largest |direction|
 /// component is `dir_max` and whose origin's largest |coordinate| is `org_max`, in a scene
-/// of coordinates up to `scale`: 0 unless the direction is smaller than `2^-100` of the
-/// scale, else the least that lifts it to that. Then `|inv|` ≤ 2^21 / (`2^-100`·scale)
+/// of coordinates up to `scale`: 0 unless the direction is smaller than about `2^-100` of
+/// the scale, else the least that lifts it to that. Then `|inv|` ≤ 2^21 / (`2^-100`·scale)
 /// keeps the products of the fused test below 2^127.
+#[inline(always)]
 pub fn box_exponent(dir_max: f32, scale: f32, org_max: f32) -> i32 {
+    // In f32 on the common path (a compare): `max·2^-99` bounds `(scale + org_max)·2^-100`
+    // from above without overflowing.
+    const LIMIT: f32 = 1.0 / (1u128 << 99) as f32;
+    if dir_max >= scale.max(org_max) * LIMIT || dir_max == 0.0 {
+        return 0;
+    }
+    rare_exponent(dir_max, scale, org_max)
+}
+
+/// [`box_exponent`]'s exponent where it is not 0 (cold).
+#[cold]
+#[inline(never)]
+fn rare_exponent(dir_max: f32, scale: f32, org_max: f32) -> i32 {
     let need = (f64::from(scale) + f64::from(org_max)) * 2f64.powi(-100);
     let a = f64::from(dir_max);
-    if a >= need || a == 0.0 || !need.is_finite() {
+    if a >= need || !need.is_finite() {
         0
     } else {
         (need / a).log2().ceil() as i32
