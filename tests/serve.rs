@@ -1454,6 +1454,15 @@ fn old_geometry_versions_are_deleted_unless_a_job_names_them() {
     assert_eq!(put(3.0), 4);
     let gone = trace(2);
     assert_eq!(gone.status, 404, "{}", String::from_utf8_lossy(&gone.body));
+    // The problem names the parameter, as a malformed version's does.
+    assert_eq!(gone.json()["field"], "version");
+    for never in [0, 99] {
+        let r = trace(never);
+        assert_eq!(
+            (r.status, r.json()["field"].clone()),
+            (404, "version".into())
+        );
+    }
     assert_eq!(geometry(2), 404);
     // Its blob goes at once, not after the collection's 15-minute grace.
     let t0 = Instant::now();

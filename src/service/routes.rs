@@ -102,6 +102,11 @@ impl From<AppError> for ApiError {
 
 fn store_error(e: StoreError) -> ApiError {
     match e {
+        // A version the scene does not have names the parameter, as a malformed one does.
+        StoreError::NotFound {
+            what: "version",
+            id,
+        } => ApiError::not_found(format!("no version {id}")).with_field("version"),
         StoreError::NotFound { what, id } => ApiError::not_found(format!("no {what} {id}")),
         StoreError::BadPageToken => ApiError::bad_request(e.to_string()).with_field("page_token"),
         StoreError::Invalid { field, reason } => {
