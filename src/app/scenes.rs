@@ -595,16 +595,17 @@ impl App {
                 });
             }
         }
+        let answer = |key, triangles, cameras| {
+            let geometry = Geometry {
+                key,
+                triangles,
+                forgets,
+            };
+            Ok((geometry, cameras))
+        };
         let key = GeometryKey::new(id, version, time);
         if let Some((triangles, cameras)) = self.inner.scenes.geometry(&key) {
-            return Ok((
-                Geometry {
-                    key,
-                    triangles,
-                    forgets,
-                },
-                cameras,
-            ));
+            return answer(key, triangles, cameras);
         }
         let loaded = self.loaded(id).await?;
         let mut cameras = Arc::new(loaded.scene.cameras.clone());
@@ -613,15 +614,7 @@ impl App {
         // is the static pose, under its key: one structure serves them all.
         if version == 1 && (time.is_none() || loaded.scene.rig.is_none()) {
             let triangles = Arc::clone(&loaded.static_pose);
-            let key = GeometryKey::new(id, 1, None);
-            return Ok((
-                Geometry {
-                    key,
-                    triangles,
-                    forgets,
-                },
-                cameras,
-            ));
+            return answer(GeometryKey::new(id, 1, None), triangles, cameras);
         }
         let tris: Arc<Vec<Triangle>> = if let (1, Some(t)) = (version, time) {
             // The scene's rig re-poses it: no second parse of the file.
@@ -659,14 +652,7 @@ impl App {
                 }
             }
         }
-        Ok((
-            Geometry {
-                key,
-                triangles: tris,
-                forgets,
-            },
-            cameras,
-        ))
+        answer(key, tris, cameras)
     }
 
     /// The world-space triangles of scene `id` at `version` (default: the latest) and `time`

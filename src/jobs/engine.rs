@@ -429,13 +429,17 @@ mod tests {
     use crate::geometry::Triangle;
     use crate::jobs::GeometryKey;
 
-    #[test]
-    fn measured_bodies_move_the_expected_arrival() {
-        let e = Engine::new(EngineOptions {
+    fn one_thread() -> Engine {
+        Engine::new(EngineOptions {
             threads: 1,
             ..Default::default()
         })
-        .unwrap();
+        .unwrap()
+    }
+
+    #[test]
+    fn measured_bodies_move_the_expected_arrival() {
+        let e = one_thread();
         let rays = 1 << 18; // 8 MiB
         let first = e.arrival(rays);
         assert!((first - 8.0 * 1048576.0 / DEFAULT_UPLOAD_BYTES_PER_SECOND).abs() < 1e-4);
@@ -494,11 +498,7 @@ mod tests {
     /// id uploaded again could have other positions under the same version number.
     #[test]
     fn a_structure_made_over_a_forgotten_scene_is_not_kept() {
-        let e = Engine::new(EngineOptions {
-            threads: 1,
-            ..Default::default()
-        })
-        .unwrap();
+        let e = one_thread();
         let before = grid(8, 2, e.forgets());
         e.forget_scene("grid");
         assert_eq!(prepare(&e, &before, 1000).source, Source::Built);
@@ -514,11 +514,7 @@ mod tests {
     /// another, far away) is built anew, and later versions refit the new tree.
     #[test]
     fn a_refit_that_swells_the_tree_is_built_instead() {
-        let e = Engine::new(EngineOptions {
-            threads: 1,
-            ..Default::default()
-        })
-        .unwrap();
+        let e = one_thread();
         let rays = 1 << 16;
         let v1 = grid(64, 1, 0);
         assert_eq!(prepare(&e, &v1, rays).source, Source::Built);

@@ -742,17 +742,21 @@ impl Placement<'_> {
         if prim.normals.is_some() {
             return;
         }
-        for (k, c) in prim.corners.chunks_exact(3).enumerate() {
-            let m = match self.joints {
-                // A joint the skin lacks was refused when the positions were placed.
-                Some((skin, mats)) => self.skin_matrix(mats, skin, c[0] as usize).ok(),
-                None => Some(*self.world),
-            };
-            if m.is_some_and(|m| DMat3::from_mat4(m).determinant() < 0.0) {
-                super::set_bit(bits, first + k);
-            } else if self.joints.is_none() {
-                // One transform for the whole primitive: nothing mirrors.
-                return;
+        let mirrors = |m: &DMat4| DMat3::from_mat4(*m).determinant() < 0.0;
+        let triangles = prim.corners.len() / 3;
+        match self.joints {
+            None if mirrors(self.world) => {
+                (first..first + triangles).for_each(|id| super::set_bit(bits, id));
+            }
+            None => {}
+            Some((skin, mats)) => {
+                for (k, c) in prim.corners.chunks_exact(3).enumerate() {
+                    // A joint the skin lacks was refused when the positions were placed.
+                    let m = self.skin_matrix(mats, skin, c[0] as usize);
+                    if m.is_ok_and(|m| mirrors(&m)) {
+                        super::set_bit(bits, first + k);
+                    }
+                }
             }
         }
     }

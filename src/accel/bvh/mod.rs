@@ -67,6 +67,16 @@ mod validate;
 mod wide;
 
 pub(crate) use build::half_area;
+
+/// A refitted tree's surface-area cost `now` over its cost as `built` (measured before its
+/// first refit, `None` for a tree never refitted): about how much slower it traces than
+/// when it was built; 1 where either cost is unknown or 0 (an empty or flat tree).
+pub(crate) fn drift(now: f64, built: Option<f64>) -> f64 {
+    match built {
+        Some(b) if b > 0.0 && now > 0.0 => now / b,
+        _ => 1.0,
+    }
+}
 pub(crate) use refit::check as check_refit;
 
 pub use bvh2::{Bvh2, Bvh2Node, Bvh2Tri, BVH2_MAX_LEAF};

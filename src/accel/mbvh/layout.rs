@@ -102,8 +102,9 @@ pub struct TravTree<const N: usize, T> {
     /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
     /// leave exactly these out.
     pub excluded: Vec<u32>,
-    /// [`TravTree::cost`] as built; refits keep it, to measure how far they drifted.
-    pub built_cost: f64,
+    /// [`TravTree::cost`] as built, measured by the first refit (a build pays nothing for
+    /// it) and kept by the later ones, to measure how far they drifted.
+    pub built_cost: Option<f64>,
 }
 
 impl<const N: usize, T> TravTree<N, T> {
@@ -137,15 +138,9 @@ impl<const N: usize, T> TravTree<N, T> {
         sum / area
     }
 
-    /// [`TravTree::cost`] now over the cost as built: about how much slower the tree
-    /// traces after its refits than it did when built (1 when either cost is 0).
+    /// [`TravTree::cost`] now over the cost as built ([`bvh::drift`]).
     pub fn slowdown(&self) -> f64 {
-        let now = self.cost();
-        if self.built_cost > 0.0 && now > 0.0 {
-            now / self.built_cost
-        } else {
-            1.0
-        }
+        bvh::drift(self.cost(), self.built_cost)
     }
 }
 
@@ -262,17 +257,15 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
         triangles: usize,
         excluded: Vec<u32>,
     ) -> Self {
-        let mut tree = TravTree {
+        TravTree {
             scale: nodes.first().map_or(0.0, |n| n.bounds().max_abs()),
             depth: depth(&nodes),
             nodes,
             packs,
             triangles,
             excluded,
-            built_cost: 0.0,
-        };
-        tree.built_cost = tree.cost();
-        tree
+            built_cost: None,
+        }
     }
 
     /// Takes new positions for the same triangles (same count, same ids) in place,
@@ -285,6 +278,9 @@ impl<const N: usize, T: TriTest> TravTree<N, T> {
     /// `bvh::Mbvh::refit` refuses.
     pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), RefitError> {
         bvh::check_refit(&self.excluded, self.triangles, triangles)?;
+        if self.built_cost.is_none() {
+            self.built_cost = Some(self.cost());
+        }
         self.packs
             .par_iter_mut()
             .with_min_len(64)

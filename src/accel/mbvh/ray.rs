@@ -280,11 +280,6 @@ impl SlabConsts {
         }
     }
 
-    /// The same constants from the scalar [`BoxRay`] of `r` (the reference).
-    pub fn reference(r: &PreparedRay, scale: f32) -> SlabConsts {
-        SlabConsts::from_box_ray(&BoxRay::new(r, scale))
-    }
-
     /// The same constants from the scalar [`BoxRay`] (the reference).
     pub fn from_box_ray(b: &BoxRay) -> SlabConsts {
         let oi = |o: f32, k: usize| -(o * b.inv[k]);
@@ -352,7 +347,7 @@ mod tests {
         }
         let want: Vec<SlabConsts> = cases
             .iter()
-            .map(|(r, sc)| SlabConsts::reference(r, *sc))
+            .map(|(r, sc)| SlabConsts::from_box_ray(&BoxRay::new(r, *sc)))
             .collect();
         for b in Backend::supported() {
             let got = dispatch(b, Consts(cases.clone()));

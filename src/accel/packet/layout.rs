@@ -41,8 +41,9 @@ pub struct PacketTree<T> {
     /// Ids left out of the tree (degenerate or non-finite), ascending: a refit must
     /// leave exactly these out.
     pub excluded: Vec<u32>,
-    /// [`PacketTree::cost`] as built; refits keep it, to measure how far they drifted.
-    pub built_cost: f64,
+    /// [`PacketTree::cost`] as built, measured by the first refit and kept by the later
+    /// ones, to measure how far they drifted.
+    pub built_cost: Option<f64>,
 }
 
 impl<T> PacketTree<T> {
@@ -67,14 +68,9 @@ impl<T> PacketTree<T> {
             / area
     }
 
-    /// [`PacketTree::cost`] now over the cost as built (1 when either is 0).
+    /// [`PacketTree::cost`] now over the cost as built ([`bvh::drift`]).
     pub fn slowdown(&self) -> f64 {
-        let now = self.cost();
-        if self.built_cost > 0.0 && now > 0.0 {
-            now / self.built_cost
-        } else {
-            1.0
-        }
+        bvh::drift(self.cost(), self.built_cost)
     }
 }
 
@@ -109,16 +105,14 @@ impl<T: TriTest> PacketTree<T> {
                 }
             })
             .collect();
-        let mut out = PacketTree {
+        PacketTree {
             nodes,
             packs,
             scale: tree.bounds().max_abs(),
             triangles: tree.triangle_count(),
             excluded: tree.excluded().to_vec(),
-            built_cost: 0.0,
-        };
-        out.built_cost = out.cost();
-        out
+            built_cost: None,
+        }
     }
 
     /// Takes new positions for the same triangles in place, as
@@ -128,6 +122,9 @@ impl<T: TriTest> PacketTree<T> {
     /// holds; it only affects speed. Refused, tree unchanged, as `bvh::Bvh2::refit` is.
     pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), RefitError> {
         bvh::check_refit(&self.excluded, self.triangles, triangles)?;
+        if self.built_cost.is_none() {
+            self.built_cost = Some(self.cost());
+        }
         self.packs
             .par_iter_mut()
             .with_min_len(64)
