@@ -1315,17 +1315,14 @@ fn triangles_whose_products_leave_f32s_range_are_still_hit() {
 }
 
 /// Directions of 1e-39–1e-35 (hits at t up to ~1e39, some beyond f32's range) and a scene
-/// at 2^120: the trees' fused slab test (`plane·inv − org·inv`) overflowed its products
+/// at 2^120. The trees' fused slab test (`plane·inv − org·inv`) overflowed its products
 /// long before the distances did, and `mbvh4`/`mbvh8` missed hits every other core found;
-/// `bvh2`'s reciprocals of subnormal components were infinite (`mbvh::ray`, "Tiny
-/// directions"). DACRT's filter still misses some of the tiny directions' hits
-/// (`proto/semantics.md`, known shortfall): it is checked on the huge scene only.
+/// `bvh2`'s and DACRT's reciprocals of subnormal components were infinite; and every core,
+/// `brute` included, lost hits at t ~3.3e38 (the decision t's entry and the shear
+/// overflowed). Every core now tests a direction below 2^-64 as its scaled twin
+/// (`accel::tiny_dir`), under both precisions.
 #[test]
-fn tiny_directions_and_huge_scenes_keep_the_trees_exact() {
-    let trees: Vec<AccelKind> = kinds()
-        .into_iter()
-        .filter(|k| !matches!(k, AccelKind::Dacrt | AccelKind::DacrtSampled))
-        .collect();
+fn tiny_directions_and_huge_scenes_keep_every_core_exact() {
     let mut rng = Rng(0x7153);
     let sphere = icosphere(3, 1.0, [0.2, -0.1, 0.3]);
     let targets = edge_and_vertex_targets(&sphere);
@@ -1338,8 +1335,22 @@ fn tiny_directions_and_huge_scenes_keep_the_trees_exact() {
             }
         }
     }
-    let hits = cores(&trees, Precision::Watertight, &sphere, &rays);
+    let hits = all_cores(Precision::Watertight, &sphere, &rays);
     assert!(hits.iter().filter(|h| h.t.is_finite()).count() > rays.len() / 4);
+    // Hits just inside f32's range: every core lost these (at t ~3.3e38) while it took
+    // `1/dir` and the shear of directions of ~3e-39 as they were.
+    let near_max = hits
+        .iter()
+        .filter(|h| h.t > 3e38 && h.t.is_finite())
+        .count();
+    assert!(near_max > 100, "{near_max}");
+    let fast = all_cores(Precision::Fast, &sphere, &rays);
+    assert!(
+        fast.iter()
+            .filter(|h| h.t > 3e38 && h.t.is_finite())
+            .count()
+            > 100
+    );
     // A sphere of radius 2^90 about a centre 2^100 away, rays of |dir| ~2^-34 from 3
     // radii out: hits at t ~2^125, but |origin| · |1/dir| is ~2^134.
     let big = 2f64.powi(100);

@@ -13,6 +13,7 @@ pub mod dacrt;
 pub mod embree;
 pub mod mbvh;
 pub mod packet;
+pub mod tiny_dir;
 pub mod triangle;
 
 use crate::geometry::{Hit, Ray, Triangle};

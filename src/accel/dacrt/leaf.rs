@@ -56,7 +56,8 @@ pub trait LeafTest: Copy + Send + Sync + 'static {
     /// reports it: the layer's scalar test, then its reported t ([`TriTest::finish_t`]).
     fn full(ray: &Ray, v: [[f32; 3]; 3]) -> Option<(f32, f32, f32)> {
         let lane = Self::Scalar::lane_data(&Triangle { v });
-        Self::Scalar::intersect_lane(&PreparedRay::new(ray), &lane, ray.tmax)
+        let r = PreparedRay::new(ray);
+        Self::Scalar::intersect_lane(&r, &lane, r.tmax)
             .map(|h| (Self::Scalar::finish_t(ray, &lane, h.t), h.u, h.v))
     }
 }

@@ -35,12 +35,13 @@ pub mod top;
 pub mod traverse;
 pub mod tris;
 
-use std::sync::atomic::AtomicIsize;
+use std::sync::atomic::{AtomicBool, AtomicIsize, Ordering};
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use super::bvh::RefitError;
+use super::tiny_dir;
 use super::triangle::TriTest;
 use super::{AccelError, Intersector, Precision, Query};
 use crate::geometry::{Hit, Ray, Triangle};
@@ -128,11 +129,16 @@ impl Dacrt {
             }
         });
         // `tmin` is not in the records; rays whose `tmin` is not 0 find it here.
-        let tmin: Vec<f32> = if rays.par_iter().any(|r| r.tmin != 0.0) {
+        let mut tmin: Vec<f32> = if rays.par_iter().any(|r| r.tmin != 0.0) {
             rays.par_iter().map(|r| r.tmin).collect()
         } else {
             Vec::new()
         };
+        // Per ray, the exponent of a direction too small for its reciprocal
+        // ([`super::tiny_dir`]): such a ray is traced as its scaled twin, as every core
+        // tests it (its record, slot and `tmin` in units of `2^-e·t`), and the final pass
+        // scales its hit's t back. Empty when no ray of the batch is tiny (nearly always).
+        let mut exps: Vec<i32> = Vec::new();
         let live = self.tris.live();
         if live > 0 && !rays.is_empty() {
             let threads = rayon::current_num_threads();
@@ -150,12 +156,19 @@ impl Dacrt {
                 1
             };
             let chunk = rays.len().div_ceil(groups);
+            let tiny = AtomicBool::new(false);
             let mut recs: Vec<RayRec> = rays
                 .par_iter()
                 .enumerate()
                 .map(|(i, r)| {
                     let slot = i % chunk;
-                    let mut rec = RayRec::new(r, slot as u32);
+                    let e = tiny_dir::ray_exponent(r.dir);
+                    let mut rec = if e == 0 {
+                        RayRec::new(r, slot as u32)
+                    } else {
+                        tiny.store(true, Ordering::Relaxed);
+                        RayRec::new(&tiny_dir::scaled_ray(r, e), slot as u32)
+                    };
                     // Empty (or NaN) intervals never hit: such rays start inactive.
                     if !interval_nonempty(r) {
                         rec.set_tmax(f32::NEG_INFINITY);
@@ -163,6 +176,13 @@ impl Dacrt {
                     rec
                 })
                 .collect();
+            if tiny.into_inner() {
+                exps = rays
+                    .par_iter()
+                    .map(|r| tiny_dir::ray_exponent(r.dir))
+                    .collect();
+                scale_slots(rays, &exps, hits, &mut tmin);
+            }
             let budget = (p.fork_budget as f64 * rays.len() as f64) as usize;
             let ctx = Ctx {
                 tris: &self.tris,
@@ -222,7 +242,8 @@ impl Dacrt {
             // Slots that found nothing become the contract's miss record; the others get
             // the reported t of their hit (`TriTest::finish_t`, the one place where DACRT
             // writes a final record), from the triangle rebuilt exactly from the precompute.
-            let refines = T::PRECISION == Precision::Watertight;
+            // Möller–Trumbore's is its test's t, but for tiny rays' (scaled back).
+            let refines = T::PRECISION == Precision::Watertight || !exps.is_empty();
             hits.par_chunks_mut(FINISH_CHUNK)
                 .zip(rays.par_chunks(FINISH_CHUNK))
                 .for_each(|(hs, rs)| finish_hits::<T>(&self.tris, hs, rs, refines));
@@ -305,6 +326,20 @@ impl Dacrt {
         match self.precision {
             Precision::Fast => self.trace_all::<Moller>(rays, hits, any, finish),
             Precision::Watertight => self.trace_all::<Watertight>(rays, hits, any, finish),
+        }
+    }
+}
+
+/// The hit slots (which start at the ray's `tmax`) and `tmin` table entries of the rays
+/// whose exponent in `exps` is not 0, in their scaled units (the records already are).
+fn scale_slots(rays: &[Ray], exps: &[i32], hits: &mut [Hit], tmin: &mut [f32]) {
+    for (i, (r, &e)) in rays.iter().zip(exps).enumerate() {
+        if e != 0 {
+            let s = tiny_dir::scaled_ray(r, e);
+            hits[i].t = s.tmax;
+            if let Some(t) = tmin.get_mut(i) {
+                *t = s.tmin;
+            }
         }
     }
 }

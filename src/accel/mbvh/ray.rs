@@ -48,13 +48,14 @@
 //! overflow f32 when `|inv|` times the scene's or the origin's scale passes 2^128, long
 //! before the distance itself does: a direction of 1e-38 (inv ~1e38) in a scene a few
 //! units wide overflowed every box's distances to ±inf or NaN, and the tree missed hits at
-//! finite t (2.8e38) that `brute` found. For such directions ([`box_exponent`]) the box
+//! finite t (2.8e38) that `brute` found. For such directions ([`tiny_dir::exponent`]) the box
 //! test runs in units of `2^e·t`: the direction is scaled by `2^e` first (exact: a power of
 //! two), so every distance is the unscaled one times `2^-e`, exactly where neither
 //! overflows nor is subnormal, and the bound it is compared with, the closest hit's t, is
 //! scaled the same way and rounded up ([`SlabConsts::box_t`]). Other rays have `e = 0` and
 //! run as before.
 
+use crate::accel::tiny_dir::{self, scaled_dir, scaled_t};
 use crate::accel::triangle::PreparedRay;
 use crate::simd::{FloatV, IntV, MaskV, Select, Simd};
 
@@ -89,21 +90,6 @@ pub struct BoxRay {
     pub exp: i32,
 }
 
-/// `t` in units of `2^-e·t`, rounded up (`t` itself for `e = 0`).
-#[inline(always)]
-fn scaled_t(t: f32, exp: i32) -> f32 {
-    if exp == 0 {
-        return t;
-    }
-    let exact = f64::from(t) * 2f64.powi(-exp);
-    let x = exact as f32;
-    if f64::from(x) < exact {
-        x.next_up()
-    } else {
-        x
-    }
-}
-
 impl BoxRay {
     /// `t` in the units the box test measures, rounded up, so that a box is never pruned
     /// against a bound smaller than the hit's.
@@ -116,7 +102,7 @@ impl BoxRay {
     #[inline(always)]
     pub fn new(r: &PreparedRay, scale: f32) -> BoxRay {
         let o = r.org;
-        let exp = box_exponent(
+        let exp = tiny_dir::exponent(
             r.dir.iter().fold(0.0f32, |m, x| m.max(x.abs())),
             scale,
             o.iter().fold(0.0f32, |m, x| m.max(x.abs())),
@@ -182,41 +168,6 @@ impl BoxRay {
     }
 }
 
-/// The `e` of "Tiny directions" (module docs) for a ray whose largest |direction|
-/// component is `dir_max` and whose origin's largest |coordinate| is `org_max`, in a scene
-/// of coordinates up to `scale`: 0 unless the direction is smaller than about `2^-100` of
-/// the scale, else the least that lifts it to that. Then `|inv|` ≤ 2^21 / (`2^-100`·scale)
-/// keeps the products of the fused test below 2^127.
-#[inline(always)]
-pub fn box_exponent(dir_max: f32, scale: f32, org_max: f32) -> i32 {
-    // In f32 on the common path (a compare): `max·2^-99` bounds `(scale + org_max)·2^-100`
-    // from above without overflowing.
-    const LIMIT: f32 = 1.0 / (1u128 << 99) as f32;
-    if dir_max >= scale.max(org_max) * LIMIT || dir_max == 0.0 {
-        return 0;
-    }
-    rare_exponent(dir_max, scale, org_max)
-}
-
-/// [`box_exponent`]'s exponent where it is not 0 (cold).
-#[cold]
-#[inline(never)]
-fn rare_exponent(dir_max: f32, scale: f32, org_max: f32) -> i32 {
-    let need = (f64::from(scale) + f64::from(org_max)) * 2f64.powi(-100);
-    let a = f64::from(dir_max);
-    if a >= need || !need.is_finite() {
-        0
-    } else {
-        (need / a).log2().ceil() as i32
-    }
-}
-
-/// `dir` times `2^e` (exact: a power of two, the result normal).
-fn scaled_dir(dir: [f32; 3], e: i32) -> [f32; 3] {
-    let k = 2f64.powi(e);
-    dir.map(|x| (f64::from(x) * k) as f32)
-}
-
 /// [`BoxRay`]'s constants in the form the fused slab test uses, per axis (lane 3 unused):
 /// `1/dir`, `-(near origin · inv)`, `-(far origin · inv)`, and the direction's sign bits.
 /// Bit-identical to deriving them from [`BoxRay`] (same operations in the same order).
@@ -253,7 +204,7 @@ impl SlabConsts {
         let o = s.load_f4(&[r.org[0], r.org[1], r.org[2], 0.0]);
         let d = s.load_f4(&[r.dir[0], r.dir[1], r.dir[2], 0.0]);
         let big = o.abs().hmax();
-        let exp = box_exponent(d.abs().hmax(), scale, big);
+        let exp = tiny_dir::exponent(d.abs().hmax(), scale, big);
         let d = if exp == 0 {
             d
         } else {

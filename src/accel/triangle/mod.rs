@@ -38,7 +38,7 @@ pub use moller::MollerTrumbore;
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
 pub use watertight::{edges8, entry8, in_range8, lift_t, refined_t, Watertight};
 
-use super::Precision;
+use super::{tiny_dir, Precision};
 use crate::geometry::{Ray, Triangle};
 use crate::simd::Simd;
 use std::fmt::Debug;
@@ -68,6 +68,17 @@ impl PreparedRay {
     /// Precomputes the constants of `ray`.
     #[inline]
     pub fn new(ray: &Ray) -> PreparedRay {
+        // A ray whose direction is below `tiny_dir::TINY` is tested as its scaled twin
+        // (`accel::tiny_dir`): its t in units of `2^-e·t`, which [`TriTest::finish_t`]
+        // scales back.
+        let twin;
+        let ray = match tiny_dir::ray_exponent(ray.dir) {
+            0 => ray,
+            e => {
+                twin = tiny_dir::scaled_ray(ray, e);
+                &twin
+            }
+        };
         let d = ray.dir;
         let a = d.map(f32::abs);
         let kz = if a[0] >= a[1] && a[0] >= a[2] {
@@ -329,12 +340,13 @@ pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     /// `p`: called once per query, by every core at the place it writes its record (and by
     /// [`intersect`]), never inside the search, so that hit decisions and the `(t, id)`
     /// order stay the test's own. `ray` is the ray as given (its `tmax`, not a running
-    /// best). The identity for Möller–Trumbore; for the watertight test, [`refined_t`].
-    /// u and v are the test's.
+    /// best). For Möller–Trumbore the test's t, for the watertight test [`refined_t`],
+    /// each first scaled back where the ray was tested as its scaled twin
+    /// ([`tiny_dir::unscaled_hit_t`]). u and v are the test's.
     #[inline(always)]
     fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
-        let _ = (ray, p);
-        t
+        let _ = p;
+        tiny_dir::unscaled_hit_t(ray, t)
     }
 
     /// Scalar test on one triangle given as [`TriTest::lane_data`], interval

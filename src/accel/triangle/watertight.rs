@@ -387,7 +387,7 @@ impl TriTest for Watertight {
 
     #[inline(always)]
     fn finish_t(ray: &Ray, p: &[[f32; 3]; 3], t: f32) -> f32 {
-        refined_t(ray, p, t)
+        refined_t(ray, p, crate::accel::tiny_dir::unscaled_hit_t(ray, t))
     }
 
     #[inline]
