@@ -1102,6 +1102,95 @@ fn stalled_trace_bodies_hold_no_place_in_the_queue() {
     drop(stalled);
 }
 
+/// A synchronous trace whose client hangs up before the answer gives up its place in the
+/// queue (session 31's review: four clients that sent 1K rays and closed the connection
+/// while a long trace held the pool filled `--max-queued 4`, renders got 503, and the
+/// server traced the abandoned batches afterwards).
+#[test]
+fn abandoned_traces_give_up_their_places() {
+    use std::io::Write;
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--max-queued", "2"]);
+    // 40,000 small triangles in a unit square; `brute` tests every ray against all of them,
+    // so 40,000 rays hold the pool for about a second on two cores.
+    let tris: Vec<Triangle> = (0..40_000)
+        .map(|i| {
+            let (x, y) = ((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
+            Triangle {
+                v: [[x, y, 0.0], [x + 0.005, y, 0.0], [x, y + 0.005, 0.0]],
+            }
+        })
+        .collect();
+    let scene = s.req(
+        "POST",
+        "/v1/scenes",
+        &[("Content-Type", "application/x-rayd-tri")],
+        &write_tri(&tris),
+    );
+    assert_eq!(scene.status, 201);
+    let id = scene.json()["id"].as_str().unwrap().to_string();
+    let rays = |n| write_rays(&rays_at([0.0, 0.0, -1.0], [1.0, 1.0, 1.0], n));
+    let long = rays(40_000);
+    let octet = ("Content-Type", "application/octet-stream");
+    // An asynchronous trace is one step: it holds the pool until it is done.
+    let holder = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/trace?accel=brute"),
+        &[octet, ("Prefer", "respond-async")],
+        &long,
+    );
+    assert_eq!(
+        holder.status,
+        202,
+        "{}",
+        String::from_utf8_lossy(&holder.body)
+    );
+    let holder = holder.json()["id"].as_str().unwrap().to_string();
+    {
+        // Until the long trace has the pool.
+        let start = std::time::Instant::now();
+        while Metrics::scrape(&s).get("rayd_jobs_running") < 1.0 {
+            assert!(
+                start.elapsed().as_secs() < 30,
+                "the long trace never started"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        // Two whole 1K-ray requests whose clients hang up at once: each would wait for the
+        // pool behind the long trace, holding one of the queue's two places.
+        let small = rays(1000);
+        for _ in 0..2 {
+            let mut c = std::net::TcpStream::connect(&s.addr).unwrap();
+            write!(
+                c,
+                "POST /v1/scenes/{id}/trace HTTP/1.1\r\nHost: x\r\nContent-Type: application/octet-stream\r\nContent-Length: {}\r\n\r\n",
+                small.len()
+            )
+            .unwrap();
+            c.write_all(&small).unwrap();
+            // Long enough for the server to read the body and queue the trace.
+            std::thread::sleep(std::time::Duration::from_millis(50));
+            drop(c);
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        let r = s.req(
+            "POST",
+            &format!("/v1/scenes/{id}/render"),
+            &[("Content-Type", "application/json")],
+            br#"{"width": 8, "height": 8}"#,
+        );
+        let still_running = Metrics::scrape(&s).get("rayd_jobs_running") >= 1.0;
+        assert!(
+            still_running,
+            "the long trace ended too soon to test anything"
+        );
+        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+        assert_eq!(wait_job(&s, &holder, 60)["state"], "succeeded");
+        let job = r.json()["id"].as_str().unwrap().to_string();
+        assert_eq!(wait_job(&s, &job, 30)["state"], "succeeded");
+    }
+}
+
 /// `Prefer: respond-async` on a trace: `202` and a job whose result is the HIT1 body a
 /// synchronous trace answers; a body that the synchronous trace would refuse (over
 /// `--max-rays`, truncated) is refused the same way before any job is made.

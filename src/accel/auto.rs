@@ -61,6 +61,9 @@ pub struct Job {
     /// Seconds until the batch's last ray arrives, counted from the job's start (a request
     /// body still uploading; 0 for rays already in memory).
     pub arrival: f64,
+    /// The rays stop at their first hit (`any` queries, occlusion): a BVH's traversal
+    /// ends there, while DACRT's partitioning, which is most of its work, does not.
+    pub first_hit: bool,
 }
 
 impl Job {
@@ -75,6 +78,7 @@ impl Job {
             geometry: Geometry::New,
             frames: 1,
             arrival: 0.0,
+            first_hit: false,
         }
     }
 }
@@ -104,6 +108,13 @@ struct Model {
     /// Speed-up on 2 threads of the BVH build, the BVH trace and DACRT; more threads
     /// extrapolate it as `threads^log₂(speed-up)`.
     speedup2: [f64; 3],
+    /// The BVH's per-ray cost when rays stop at their first hit, relative to closest-hit
+    /// rays (DACRT's is taken as unchanged).
+    first_hit: f64,
+    /// `brute`'s packing of the triangles into 8-wide groups, per triangle.
+    brute_pre: f64,
+    /// `brute`'s cost per ray and triangle.
+    brute_test: f64,
 }
 
 /// Fitted to `rayd bench --frames 4 --build fast` on dragon-100k (twist) and BrainStem
@@ -128,6 +139,15 @@ const MODEL: Model = Model {
     dacrt_ray: 12.0e-9,
     speedup2: [1.5, 1.6, 1.5],
     ray_shape: [0.0, 1.5],
+    // Session 31's review (Suzanne and DamagedHelmet, 1M primary and diffuse rays, 1 and
+    // 2 threads): `mbvh8` over `dacrt-sampled` was 1.22–1.44× faster on closest-hit rays
+    // and 1.7–2.3× on `any`, where the model, blind to the query, picked DACRT.
+    first_hit: 0.6,
+    // The same review: on 1M triangles `brute` spent 80–124 ms packing and about 3.3 ns
+    // per ray and triangle (the model said 2 ns and nothing), so it was picked for up to
+    // ~75 rays and ran 2–2.9× slower than DACRT.
+    brute_pre: 0.1e-6,
+    brute_test: 3.3e-9,
 };
 
 fn speedup(s2: f64, threads: usize) -> f64 {
@@ -174,7 +194,8 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
                 * m.bvh_ray
                 * m.trace[quality_index(job.quality)]
                 * shaped(lg, m.ray_shape[0])
-                * slow;
+                * slow
+                * if job.first_hit { m.first_hit } else { 1.0 };
             let work = prep / speedup(m.speedup2[0], job.threads)
                 + trace / speedup(m.speedup2[1], job.threads);
             Some(work.max(job.arrival))
@@ -188,7 +209,9 @@ pub fn predict(kind: AccelKind, job: &Job) -> Option<f64> {
         }
         // Every ray against every triangle, eight at a time: only for a handful.
         AccelKind::Brute => {
-            Some((r * t * 2.0e-9 / speedup(m.speedup2[1], job.threads)).max(job.arrival))
+            let work = m.brute_pre * t / speedup(m.speedup2[0], job.threads)
+                + r * t * m.brute_test / speedup(m.speedup2[1], job.threads);
+            Some(work.max(job.arrival))
         }
         _ => None,
     }
@@ -210,6 +233,26 @@ pub fn choose(job: &Job) -> AccelKind {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn first_hit_rays_favour_the_bvh_and_brute_pays_its_packing() {
+        // A million rays over Suzanne's ~1K triangles: `any` goes to the tree (the review
+        // measured `mbvh8` 2.3× faster there than the DACRT that was picked).
+        let closest = Job::batch(1 << 20, 968, 1, BuildQuality::Sah);
+        let any = Job {
+            first_hit: true,
+            ..closest
+        };
+        assert!(
+            predict(AccelKind::Mbvh8, &any).unwrap() < predict(AccelKind::Mbvh8, &closest).unwrap()
+        );
+        assert_eq!(choose(&any), AccelKind::Mbvh8);
+        // 64 rays over a million triangles: not `brute` (2–2.9× slower than DACRT there).
+        assert_ne!(
+            choose(&Job::batch(64, 1_040_000, 1, BuildQuality::Sah)),
+            AccelKind::Brute
+        );
+    }
 
     #[test]
     fn a_tiny_scene_goes_to_brute_and_a_cached_structure_to_the_bvh() {

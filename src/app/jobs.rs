@@ -399,8 +399,18 @@ impl App {
             self.store().delete_job(id).await?;
             return Ok(None);
         }
-        // The store hears of progress every 500 ms; the live view is fresher. Recorded
-        // first, so that a cancelled job's progress does not go back.
+        // Stopped first, so that its progress no longer moves ([`crate::jobs::Control`]
+        // reports none once cancelled) and a job waiting for the pool gives up its place
+        // at once; then its progress is read and recorded: the store hears of progress
+        // every 500 ms, the live view is fresher, and a cancelled job's progress must not
+        // go back.
+        let stopped = {
+            let live = self.inner.live.lock().unwrap_or_else(|e| e.into_inner());
+            live.get(id).map(|l| l.cancel.cancel()).is_some()
+        };
+        if stopped {
+            self.engine().scheduler().nudge();
+        }
         let fresher = self.live(id).map(|v| v.borrow().progress);
         if let Some(p) = fresher {
             let _ = self.store().set_progress(id, p).await;
@@ -412,7 +422,10 @@ impl App {
                 self.store().delete_job(id).await?;
                 return Ok(None);
             }
-            Err(e) => return Err(e.into()),
+            Err(e) => {
+                self.forget_live(id);
+                return Err(e.into());
+            }
         };
         let live = self.take_live(id);
         let view = JobView::from_record(&cancelled);
@@ -631,9 +644,9 @@ impl App {
                 }
             }
             Err(AppError::Job(JobError::Cancelled)) => {
+                // Its canceller records the end, and takes the live entry to show it.
                 tracing::info!("job cancelled");
                 observe(JobState::Cancelled);
-                self.forget_live(&id);
                 return;
             }
             // Refused its start by a shutdown: its record stays queued, for the next start.
@@ -643,7 +656,7 @@ impl App {
                 return;
             }
             Err(e) => JobOutcome::Failed {
-                error: e.to_string(),
+                error: failure_reason(&e),
                 stats: None,
             },
         };
@@ -651,12 +664,20 @@ impl App {
         if !cancel.is_cancelled() {
             // The job may not have started (it failed in the queue): start it to end it.
             let store = self.store().clone();
+            // A failure keeps the progress its job had reached (the store hears of it only
+            // every 500 ms; a job that failed sooner went from 1 back to 0).
+            let reached = matches!(end, JobOutcome::Failed { .. })
+                .then(|| self.live(&id).map(|v| v.borrow().progress))
+                .flatten();
             let finished = rt.block_on(async {
                 if matches!(
                     store.get_job(&id).await.map(|r| r.state),
                     Ok(JobState::Queued)
                 ) {
                     let _ = store.start_job(&id).await;
+                }
+                if let Some(p) = reached {
+                    let _ = store.set_progress(&id, p).await;
                 }
                 match store.finish_job(&id, end).await {
                     Err(e) => {
@@ -672,7 +693,10 @@ impl App {
                         // end it.
                         tracing::error!("cannot record the job's end: {e}; recording a failure");
                         let failed = JobOutcome::Failed {
-                            error: format!("the job's results could not be recorded: {e}"),
+                            error: format!(
+                                "the job's results could not be recorded: {}",
+                                failure_reason(&AppError::Store(e))
+                            ),
                             stats: None,
                         };
                         store.finish_job(&id, failed).await
@@ -693,10 +717,11 @@ impl App {
                 }
                 Err(e) => tracing::error!("cannot record the job's end: {e}"),
             }
+            self.forget_live(&id);
         } else {
+            // Its canceller records the end, and takes the live entry to show it.
             observe(JobState::Cancelled);
         }
-        self.forget_live(&id);
     }
 
     /// Stops jobs `ids`, deleted with their scene: each ends within a wave, as a
@@ -785,9 +810,12 @@ impl App {
         let mut results = Vec::new();
         let mime = request.format.mime();
         let mut emit = |_k: usize, bytes: Vec<u8>| {
-            let blob = rt
-                .block_on(self.store().put_blob(bytes))
-                .map_err(|e| JobError::Geometry(format!("storing the result: {e}")))?;
+            let blob = rt.block_on(self.store().put_blob(bytes)).map_err(|e| {
+                JobError::Geometry(format!(
+                    "storing the result: {}",
+                    failure_reason(&AppError::Store(e))
+                ))
+            })?;
             results.push((blob, mime.to_string()));
             Ok(())
         };
@@ -847,4 +875,28 @@ fn show(events: &watch::Sender<JobView>, view: &JobView) {
         *shown = view.clone();
         true
     });
+}
+
+/// What a failed job's record tells its client: the error, except where it is the server's
+/// own (the store's I/O, its database, an internal fault), whose text names server paths
+/// and internals (session 31's review found a blob's absolute path in a job's error): then
+/// what happened in general terms, the log having the cause under the job's id.
+fn failure_reason(e: &AppError) -> String {
+    match e {
+        AppError::Store(StoreError::Full { .. }) => {
+            tracing::error!("job failed: {e}");
+            "the server's storage is full; the result was not stored".into()
+        }
+        AppError::Store(
+            StoreError::Io { .. }
+            | StoreError::Db(_)
+            | StoreError::Migrate(_)
+            | StoreError::Corrupt { .. },
+        )
+        | AppError::Internal(_) => {
+            tracing::error!("job failed: {e}");
+            "the server failed to finish this job; its log has the cause under the job's id".into()
+        }
+        other => other.to_string(),
+    }
 }

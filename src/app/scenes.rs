@@ -727,11 +727,44 @@ impl App {
         };
         let ticket = admit_sync_trace(&engine)?;
         let (arrive, arrivals) = std::sync::mpsc::channel();
+        let abandon = Abandon::new(&engine);
+        let cancel = abandon.token.clone();
         let done = on_trace_thread(move || {
-            let control = engine.control(Default::default(), None, ticket);
+            let control = engine.control(cancel, None, ticket);
             engine.trace_stream(&geometry, &request, count, arrival, arrivals, &control)
         })?;
-        Ok(TraceIntake::Streamed { arrive, done })
+        Ok(TraceIntake::Streamed {
+            arrive,
+            done,
+            abandon,
+        })
+    }
+}
+
+/// Cancels a synchronous trace whose request is dropped before its answer (the client
+/// went away): a trace nobody waits for then gives up its place in the queue, or stops
+/// at its next step, instead of holding a place and the pool for nobody (session 31's
+/// review: four clients that sent 1K rays and hung up filled `--max-queued 4` behind a
+/// long trace, and renders got 503). Cancelling a trace that has answered changes nothing.
+pub struct Abandon {
+    token: crate::jobs::CancelToken,
+    sched: Arc<sched::Scheduler>,
+}
+
+impl Abandon {
+    fn new(engine: &crate::jobs::Engine) -> Abandon {
+        Abandon {
+            token: crate::jobs::CancelToken::new(),
+            sched: Arc::clone(engine.scheduler()),
+        }
+    }
+}
+
+impl Drop for Abandon {
+    fn drop(&mut self) {
+        self.token.cancel();
+        // A trace waiting for the pool notices at once.
+        self.sched.nudge();
     }
 }
 
@@ -809,6 +842,8 @@ pub enum TraceIntake {
         arrive: std::sync::mpsc::Sender<trace::Arrival>,
         /// The answer.
         done: TraceDone,
+        /// Cancels the trace if the request is dropped first.
+        abandon: Abandon,
     },
 }
 
@@ -831,11 +866,15 @@ impl TraceIntake {
 
     /// Hands over the last rays of a complete, well-formed body and waits for the answer.
     pub async fn finish(self, mut rays: RaySegment) -> Result<(HitBody, TraceReport), AppError> {
-        let done = match self {
-            TraceIntake::Streamed { arrive, done } => {
+        let (done, _abandon) = match self {
+            TraceIntake::Streamed {
+                arrive,
+                done,
+                abandon,
+            } => {
                 let _ = arrive.send(trace::Arrival::Rays(rays));
                 let _ = arrive.send(trace::Arrival::End);
-                done
+                (done, abandon)
             }
             TraceIntake::Whole {
                 geometry,
@@ -844,11 +883,14 @@ impl TraceIntake {
             } => {
                 // Its place in the queue, now that the whole batch is here.
                 let ticket = admit_sync_trace(&engine)?;
-                on_trace_thread(move || {
+                let abandon = Abandon::new(&engine);
+                let cancel = abandon.token.clone();
+                let done = on_trace_thread(move || {
                     let invalid = trace::validate_read(&mut rays, request.invalid)?;
-                    let control = engine.control(Default::default(), None, ticket);
+                    let control = engine.control(cancel, None, ticket);
                     engine.trace(&geometry, &rays.rays, &request, invalid, &control)
-                })?
+                })?;
+                (done, abandon)
             }
         };
         Ok(done

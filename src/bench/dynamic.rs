@@ -131,6 +131,9 @@ pub struct DynamicScene {
     pub series: Vec<FrameSeries>,
     /// `auto`'s pick for every measured situation, against the fastest measured one.
     pub auto: Vec<AutoPick>,
+    /// The situations where `auto` picks a strategy that was not measured (`brute` is
+    /// measured only when named), which [`DynamicScene::auto`] therefore cannot score.
+    pub auto_unmeasured: Vec<String>,
 }
 
 /// What `auto` would have run in one measured situation, and what that cost.
@@ -176,9 +179,15 @@ fn candidates(refittable: bool) -> &'static [(&'static str, &'static str)] {
 }
 
 /// Scores `auto` on every (set, threads, rays, geometry) of `series` where its pick and at
-/// least one other candidate were measured.
-fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -> Vec<AutoPick> {
+/// least one other candidate were measured; the situations whose pick was not measured are
+/// listed apart, never dropped silently.
+fn score_auto(
+    series: &[FrameSeries],
+    triangles: usize,
+    quality: BuildQuality,
+) -> (Vec<AutoPick>, Vec<String>) {
     let mut out = Vec::new();
+    let mut unmeasured = Vec::new();
     let mut cells: Vec<(String, usize, usize)> = Vec::new();
     for f in series {
         let c = (f.set.clone(), f.threads, f.rays);
@@ -217,9 +226,15 @@ fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -
                 // Each measured frame stands alone: "new" rebuilds every frame.
                 frames: 1,
                 arrival: 0.0,
+                first_hit: false,
             };
             let pick = auto::choose(&job);
+            let geometry = if refittable { "refittable" } else { "new" };
             let Some(p) = measured.iter().find(|f| f.accel == pick.name()) else {
+                unmeasured.push(format!(
+                    "{set}, {threads} thread(s), {rays} rays, {geometry}: auto picks {}, not measured",
+                    pick.name()
+                ));
                 continue;
             };
             let best = measured
@@ -230,7 +245,7 @@ fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -
                 set: set.clone(),
                 threads,
                 rays,
-                geometry: if refittable { "refittable" } else { "new" }.into(),
+                geometry: geometry.into(),
                 picked: format!("{} {}", p.accel, p.mode),
                 fastest: format!("{} {}", best.accel, best.mode),
                 picked_seconds: p.median_frame_seconds,
@@ -238,7 +253,7 @@ fn score_auto(series: &[FrameSeries], triangles: usize, quality: BuildQuality) -
             });
         }
     }
-    out
+    (out, unmeasured)
 }
 
 /// The whole run.
@@ -460,6 +475,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
             frames: frames.len(),
             series: Vec::new(),
             auto: Vec::new(),
+            auto_unmeasured: Vec::new(),
         };
         // The first frame's pose, for the view (the room comes from all frames' bounds).
         let first = Scene {
@@ -593,7 +609,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                 }
             }
         }
-        out.auto = score_auto(&out.series, out.triangles, config.build);
+        (out.auto, out.auto_unmeasured) = score_auto(&out.series, out.triangles, config.build);
         report.scenes.push(out);
     }
     Ok(report)

@@ -436,6 +436,10 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 results: Vec::new(),
             };
             let rays_total: usize = sets.iter().map(|s| s.rays.len()).sum();
+            // `auto` may resolve to a core also named, and `--threads 0` to a count also
+            // named: each pair is measured once (session 31's review found both measured
+            // twice, and the table printing the first's figures on both rows).
+            let mut measured: Vec<(&'static str, usize)> = Vec::new();
             for &asked in &config.accels {
                 for &threads in &config.threads {
                     let p = pool(threads)?;
@@ -449,7 +453,19 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         geometry: crate::accel::auto::Geometry::New,
                         frames: 1,
                         arrival: 0.0,
+                        first_hit: false,
                     });
+                    if asked != kind {
+                        eprintln!("bench: {} resolves to {}", asked.name(), kind.name());
+                    }
+                    if measured.contains(&(kind.name(), threads)) {
+                        eprintln!(
+                            "bench: {} on {threads} thread(s) is measured once",
+                            kind.name()
+                        );
+                        continue;
+                    }
+                    measured.push((kind.name(), threads));
                     let options = BuildOptions { threads, ..options };
                     let mut build_times = Vec::new();
                     let mut accel = None;

@@ -343,5 +343,18 @@ pub fn render_dynamic_table(report: &DynamicReport) -> String {
             picks.len()
         );
     }
+    let unmeasured: Vec<&String> = report
+        .scenes
+        .iter()
+        .flat_map(|sc| &sc.auto_unmeasured)
+        .collect();
+    if !unmeasured.is_empty() {
+        let _ = writeln!(
+            s,
+            "\nnot scored ({} situation(s): auto's pick was not measured; name it with --accel): {}",
+            unmeasured.len(),
+            unmeasured.iter().map(|u| u.as_str()).collect::<Vec<_>>().join("; ")
+        );
+    }
     s
 }

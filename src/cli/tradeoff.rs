@@ -26,13 +26,18 @@ pub(super) struct TradeoffArgs {
     #[arg(long, default_value_t = 120)]
     height: u32,
     /// Samples per pixel of the base (every rung but those of `spp`).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..))]
     spp: u32,
     /// Bounces of the base.
     #[arg(long, default_value_t = 3)]
     bounces: u32,
-    /// The rungs of the `spp` axis.
-    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16,32,64")]
+    /// The rungs of the `spp` axis (each at least 1: refused before anything renders).
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "1,2,4,8,16,32,64",
+        value_parser = clap::value_parser!(u32).range(1..)
+    )]
     spp_ladder: Vec<u32>,
     /// The rungs of the `bounces` axis.
     #[arg(long, value_delimiter = ',', default_value = "0,1,2,3,4,6,8")]
@@ -52,7 +57,7 @@ pub(super) struct TradeoffArgs {
     )]
     axes: Vec<Axis>,
     /// Samples per pixel of the reference.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(1..))]
     reference_spp: u32,
     /// Bounces of the reference (default: the most of any rung).
     #[arg(long)]

@@ -75,6 +75,12 @@ impl Control {
 
     /// Reports `fraction` done (clamped to 0..1).
     pub fn progress(&self, fraction: f64) {
+        // A cancelled job's progress stays where it was when it was cancelled: the waves
+        // that end after that are not reported, so the cancelled state, which records the
+        // progress read after cancelling, is never behind an event sent before it.
+        if self.cancel.is_cancelled() {
+            return;
+        }
         if let Some(p) = &self.progress {
             p(fraction.clamp(0.0, 1.0));
         }

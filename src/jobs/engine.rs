@@ -313,8 +313,9 @@ impl Engine {
     /// Resolves `accel` for a job of `rays` rays in `batches` trace calls over `geometry`,
     /// the first of `frames` frames over moving positions of its triangles (1: a single
     /// one), whose last ray arrives `arrival` seconds after the job starts (a request body
-    /// still uploading; 0 for rays in memory): `auto` asks the cost model, told what the
-    /// cache holds.
+    /// still uploading; 0 for rays in memory), which stop at their first hit when
+    /// `first_hit` (`any`, occlusion): `auto` asks the cost model, told what the cache
+    /// holds.
     #[allow(clippy::too_many_arguments)]
     pub fn resolve(
         &self,
@@ -326,6 +327,7 @@ impl Engine {
         batches: usize,
         frames: usize,
         arrival: f64,
+        first_hit: bool,
     ) -> AccelKind {
         let mbvh = self.key(geometry, AccelKind::Mbvh8, quality, precision);
         accel.resolve(&auto::Job {
@@ -337,6 +339,7 @@ impl Engine {
             geometry: self.known(&mbvh),
             frames,
             arrival,
+            first_hit,
         })
     }
 
@@ -382,6 +385,7 @@ impl Engine {
                 geometry,
                 frames: 1,
                 arrival: 0.0,
+                first_hit: false,
             };
             let refit = auto::predict(AccelKind::Mbvh8, &job(Known::Refittable));
             let trace = auto::predict(AccelKind::Mbvh8, &job(Known::Built));

@@ -22,6 +22,16 @@
 //! for one to end, whatever its priority, while the started ones keep taking turns by
 //! theirs. Synchronous traces are not counted: the request-body budget bounds what they
 //! hold, and a waiting small request must still win the next wave.
+//!
+//! Between two of its steps a job holds no lease and is not waiting for one, for the few
+//! microseconds it takes to ask again (or a few milliseconds after admission, or after a
+//! restart re-admits it, before its thread first asks). A lower-ranked ticket waiting
+//! then would take the pool and keep taking turns beside it: a priority-10 render ran
+//! beside a priority-50 one (session 31's review). So a ticket that is absent — admitted
+//! or between steps, and able to start — keeps the pool from the tickets it outranks for
+//! [`ABSENT_GRACE`] after it went absent; a job that stays away longer (it is writing its
+//! result, say) leaves the pool to them. Background work (a thumbnail, small) is not held
+//! back: it may still run between another job's steps.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -42,6 +52,13 @@ pub const LONG_WAVE_SECONDS: f64 = 0.5;
 /// How long after an interactive request waves stay short.
 const INTERACTIVE_WINDOW: Duration = Duration::from_secs(1);
 
+/// How long an absent ticket (admitted, or between steps) keeps the pool from the tickets
+/// it outranks (see the module docs).
+pub const ABSENT_GRACE: Duration = Duration::from_millis(5);
+
+/// How often a waiting ticket looks at its cancellation.
+const POLL: Duration = Duration::from_millis(20);
+
 /// Rank in the lease queue: higher priority first, then earlier admission.
 type Rank = (std::cmp::Reverse<u16>, u64);
 
@@ -52,6 +69,9 @@ struct State {
     /// Tickets waiting for the lease, with whether each may take it when it ranks first
     /// (see [`Waiter`]).
     waiting: BTreeMap<Rank, Waiter>,
+    /// Tickets neither waiting nor holding the lease (admitted and not yet asking, or
+    /// between steps), with when they went absent and how they would wait.
+    absent: BTreeMap<Rank, (Instant, Waiter)>,
     /// Admitted tickets that have not held a lease yet.
     queued: usize,
     /// Tickets that have held a lease and are not finished.
@@ -110,6 +130,17 @@ impl Scheduler {
             .map(|(r, _)| *r)
     }
 
+    /// How much longer a ticket that outranks `rank`, absent for less than
+    /// [`ABSENT_GRACE`] and able to start, keeps the pool from `rank` (`None`: none does).
+    fn held_back(&self, s: &State, rank: Rank) -> Option<Duration> {
+        s.absent
+            .range(..rank)
+            .filter(|(_, (_, w))| self.may_start(s, *w))
+            .filter_map(|(_, (since, _))| ABSENT_GRACE.checked_sub(since.elapsed()))
+            .filter(|left| !left.is_zero())
+            .min()
+    }
+
     fn lock(&self) -> MutexGuard<'_, State> {
         // A panic while holding this lock cannot leave the counters half-updated (every
         // update is a single statement), so a poisoned lock is still consistent.
@@ -126,12 +157,14 @@ impl Scheduler {
         if interactive {
             s.last_interactive = Some(Instant::now());
         }
-        Ok(Ticket {
+        let ticket = Ticket {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
             background: false,
-        })
+        };
+        ticket.went_absent(&mut s);
+        Ok(ticket)
     }
 
     /// Whether [`Scheduler::admit`] would admit a job now, without taking a place: a
@@ -175,24 +208,31 @@ impl Scheduler {
         s.queued += 1;
         s.queued_background += usize::from(background);
         s.next_seq += 1;
-        Ticket {
+        let ticket = Ticket {
             sched: Arc::clone(self),
             rank: (std::cmp::Reverse(priority), s.next_seq),
             started: AtomicBool::new(false),
             background,
-        }
+        };
+        ticket.went_absent(&mut s);
+        ticket
     }
 
     /// Waits until `ticket` ranks first among the waiting tickets that may take the pool
     /// (a job that has not started may not while `max_running` have), and the pool is
     /// free, then holds the pool until the lease is dropped. Fails if `cancel` fires while
     /// waiting.
-    pub fn lease(&self, ticket: &Ticket, cancel: &CancelToken) -> Result<Lease<'_>, JobError> {
+    pub fn lease<'a>(
+        &'a self,
+        ticket: &'a Ticket,
+        cancel: &CancelToken,
+    ) -> Result<Lease<'a>, JobError> {
         let mut s = self.lock();
         let waiter = Waiter {
             started: ticket.started.load(Ordering::Acquire),
             counted: ticket.counted(),
         };
+        s.absent.remove(&ticket.rank);
         s.waiting.insert(ticket.rank, waiter);
         loop {
             // Once shutting down, no job starts, even on a free pool: a queued one stays
@@ -206,7 +246,13 @@ impl Scheduler {
                 self.wake.notify_all();
                 return Err(JobError::ShuttingDown);
             }
-            if !s.held && self.next(&s) == Some(ticket.rank) {
+            // Background work (small) still takes the pool between another job's steps.
+            let held_back = if ticket.background {
+                None
+            } else {
+                self.held_back(&s, ticket.rank)
+            };
+            if !s.held && self.next(&s) == Some(ticket.rank) && held_back.is_none() {
                 s.waiting.remove(&ticket.rank);
                 s.held = true;
                 if !ticket.started.swap(true, Ordering::AcqRel) {
@@ -217,7 +263,10 @@ impl Scheduler {
                         s.running_counted += 1;
                     }
                 }
-                return Ok(Lease { sched: self });
+                return Ok(Lease {
+                    sched: self,
+                    ticket,
+                });
             }
             if cancel.is_cancelled() {
                 s.waiting.remove(&ticket.rank);
@@ -225,10 +274,12 @@ impl Scheduler {
                 self.wake.notify_all();
                 return Err(JobError::Cancelled);
             }
-            // Cancellation does not notify; poll it while waiting.
+            // Cancellation does not notify; poll it while waiting (and look again when an
+            // absent ticket's hold ends).
+            let wait = held_back.map_or(POLL, |d| d.min(POLL));
             s = self
                 .wake
-                .wait_timeout(s, Duration::from_millis(20))
+                .wait_timeout(s, wait)
                 .unwrap_or_else(|e| e.into_inner())
                 .0;
         }
@@ -255,6 +306,12 @@ impl Scheduler {
     /// Jobs that have started and not finished.
     pub fn running(&self) -> usize {
         self.lock().running
+    }
+
+    /// Wakes every ticket waiting for the pool, so that one whose job was cancelled
+    /// (which does not notify by itself) gives up its place at once.
+    pub fn nudge(&self) {
+        self.wake.notify_all();
     }
 
     /// Refuses new work from now on ([`JobError::ShuttingDown`]).
@@ -290,11 +347,24 @@ impl Ticket {
     pub fn lease(&self, cancel: &CancelToken) -> Result<Lease<'_>, JobError> {
         self.sched.lease(self, cancel)
     }
+
+    /// Records that the ticket holds no lease and is not waiting for one, from now.
+    fn went_absent(&self, s: &mut State) {
+        let waiter = Waiter {
+            started: self.started.load(Ordering::Acquire),
+            counted: self.counted(),
+        };
+        s.absent.insert(self.rank, (Instant::now(), waiter));
+    }
 }
 
 impl Drop for Ticket {
     fn drop(&mut self) {
         let mut s = self.sched.lock();
+        if s.absent.remove(&self.rank).is_some() {
+            // Tickets it outranked need not wait out its grace.
+            self.sched.wake.notify_all();
+        }
         if self.started.load(Ordering::Acquire) {
             s.running -= 1;
             if self.counted() {
@@ -312,11 +382,14 @@ impl Drop for Ticket {
 /// The pool, held by one step; dropping it hands the pool to the next waiting ticket.
 pub struct Lease<'a> {
     sched: &'a Scheduler,
+    ticket: &'a Ticket,
 }
 
 impl Drop for Lease<'_> {
     fn drop(&mut self) {
-        self.sched.lock().held = false;
+        let mut s = self.sched.lock();
+        s.held = false;
+        self.ticket.went_absent(&mut s);
         self.sched.wake.notify_all();
     }
 }
@@ -374,6 +447,46 @@ mod tests {
             t.join().unwrap();
         }
         assert_eq!(*order.lock().unwrap(), ["high", "mid1", "mid2", "low"]);
+    }
+
+    /// A job between two of its steps keeps the pool from the tickets it outranks (session
+    /// 31's review: a priority-10 render took turns beside a priority-50 one).
+    #[test]
+    fn a_job_between_steps_keeps_the_pool_from_lower_ranks() {
+        let s = Scheduler::new(16, 16);
+        let high = s.admit(50, false).unwrap();
+        let low = s.admit(10, false).unwrap();
+        let steps = Arc::new(Mutex::new(Vec::new()));
+        let lease = high.lease(&CancelToken::new()).unwrap();
+        let log = Arc::clone(&steps);
+        let waiter = std::thread::spawn(move || {
+            let _l = low.lease(&CancelToken::new()).unwrap();
+            log.lock().unwrap().push("low");
+        });
+        std::thread::sleep(Duration::from_millis(30));
+        // Twenty waves of `high`, each asking again right after the last: `low` never
+        // gets the pool between them.
+        drop(lease);
+        for _ in 0..20 {
+            let _l = high.lease(&CancelToken::new()).unwrap();
+            steps.lock().unwrap().push("high");
+        }
+        drop(high);
+        waiter.join().unwrap();
+        let steps = steps.lock().unwrap();
+        assert_eq!(steps.last(), Some(&"low"), "{steps:?}");
+    }
+
+    /// An absent ticket's hold ends: one that outranks a waiter but does not ask for the
+    /// pool within the grace leaves it to the waiter.
+    #[test]
+    fn an_absent_ticket_holds_the_pool_back_only_briefly() {
+        let s = Scheduler::new(16, 16);
+        let _idle = s.admit(90, false).unwrap();
+        let low = s.admit(10, false).unwrap();
+        let t0 = Instant::now();
+        drop(low.lease(&CancelToken::new()).unwrap());
+        assert!(t0.elapsed() < Duration::from_secs(1));
     }
 
     #[test]

@@ -385,6 +385,7 @@ impl Engine {
             1,
             1,
             arrival,
+            request.query == Query::Any || request.hit == HitFormat::Occluded,
         )
     }
 
