@@ -30,7 +30,9 @@
 //! beside a priority-50 one (session 31's review). So a ticket that is absent — admitted
 //! or between steps, and able to start — keeps the pool from the tickets it outranks for
 //! [`ABSENT_GRACE`] after it went absent; a job that stays away longer (it is writing its
-//! result, say) leaves the pool to them. Background work (a thumbnail, small) is not held
+//! result, say) leaves the pool to them. Among synchronous traces (one priority) the
+//! earlier does not hold the pool back from the later: their steps interleave, so a small
+//! trace behind a large streamed one waits for one segment, not for the whole batch. Background work (a thumbnail, small) is not held
 //! back: it may still run between another job's steps.
 
 use std::collections::BTreeMap;
@@ -135,6 +137,10 @@ impl Scheduler {
     fn held_back(&self, s: &State, rank: Rank) -> Option<Duration> {
         s.absent
             .range(..rank)
+            // Synchronous traces interleave their steps (a 1K trace behind a streamed 4M
+            // one waits one segment, not the whole batch); jobs keep first come, first
+            // served.
+            .filter(|(r, _)| r.0 != rank.0 || rank.0 .0 != SYNC_PRIORITY)
             .filter(|(_, (_, w))| self.may_start(s, *w))
             .filter_map(|(_, (since, _))| ABSENT_GRACE.checked_sub(since.elapsed()))
             .filter(|left| !left.is_zero())
