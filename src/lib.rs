@@ -12,6 +12,17 @@
 // more plainly than zipped iterators.
 #![allow(clippy::needless_range_loop)]
 
+/// `eprintln!` for notes to the user that ignores a failed write: a closed stderr (a pipe
+/// whose reader has gone, as in `rayd bench … 2>&1 >/dev/null | head -1`) must not turn a
+/// run into a panic and exit code 101 (session 31's review).
+#[macro_export]
+macro_rules! note {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($arg)*);
+    }};
+}
+
 pub mod accel;
 pub mod app;
 pub mod bench;

@@ -1082,6 +1082,16 @@ fn bench_and_tradeoff_refuse_what_they_would_ignore() {
             vec![sample("Fox.glb"), "--motion".into(), "twist".into()],
             "--motion needs --frames",
         ),
+        (
+            vec![
+                sample("Fox.glb"),
+                "--frames".into(),
+                "2".into(),
+                "--runs".into(),
+                "7".into(),
+            ],
+            "--runs is not available with --frames",
+        ),
     ];
     for (args, needle) in cases {
         let mut all = vec!["bench".to_string()];

@@ -463,7 +463,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                 path.display()
             )));
         }
-        eprintln!(
+        crate::note!(
             "bench: {} ({} triangles), {motion}",
             path.display(),
             scene.triangles.len()
@@ -568,7 +568,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                         }
                     }
                     if let Some(e) = refused {
-                        eprintln!("bench:   {} refit skipped: {e}", kind.name());
+                        crate::note!("bench:   {} refit skipped: {e}", kind.name());
                         continue;
                     }
                     let from = usize::from(mode == Mode::Refit);
@@ -593,7 +593,7 @@ pub fn run(config: &DynamicConfig) -> Result<DynamicReport, BenchError> {
                                 1.0 - agree[k].0 as f64 / agree[k].1 as f64
                             },
                         };
-                        eprintln!(
+                        crate::note!(
                             "bench:   {:<14} {:<7} {:>2} thr {:<9} {:>8} rays  prep {:>8.2} ms  trace {:>8.2} ms  frame {:>8.2} ms",
                             s.accel,
                             s.mode,

@@ -399,7 +399,7 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                 AccelKind::Auto => auto_reference(view.triangles.len(), rays_per_set),
                 k => k,
             };
-            eprintln!(
+            crate::note!(
                 "bench: {} ({} triangles, {} view): making ray sets with {}",
                 path.display(),
                 scene.triangles.len(),
@@ -456,10 +456,10 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                         first_hit: false,
                     });
                     if asked != kind {
-                        eprintln!("bench: {} resolves to {}", asked.name(), kind.name());
+                        crate::note!("bench: {} resolves to {}", asked.name(), kind.name());
                     }
                     if measured.contains(&(kind.name(), threads)) {
-                        eprintln!(
+                        crate::note!(
                             "bench: {} on {threads} thread(s) is measured once",
                             kind.name()
                         );
@@ -526,9 +526,13 @@ pub fn run(config: &BenchConfig) -> Result<BenchReport, BenchError> {
                             edge_disagreements: at_edges,
                             steps,
                         };
-                        eprintln!(
+                        crate::note!(
                             "bench:   {:<14} {:>2} thr  {:<9} {:>8.3} Mray/s  agree {:.6}",
-                            m.accel, m.threads, m.set, m.mrays_per_s, m.agreement
+                            m.accel,
+                            m.threads,
+                            m.set,
+                            m.mrays_per_s,
+                            m.agreement
                         );
                         scene_report.results.push(m);
                     }

@@ -28,9 +28,10 @@ pub(super) struct BenchArgs {
     height: u32,
     #[command(flatten)]
     camera: CameraArgs,
-    /// Timed runs per measurement (median reported).
-    #[arg(long, default_value_t = 5)]
-    runs: usize,
+    /// Timed runs per measurement (median reported; default 5). Not with --frames, where
+    /// every frame is one run.
+    #[arg(long)]
+    runs: Option<usize>,
     /// Thread counts to measure, comma-separated; 0 = all cores.
     #[arg(long, value_delimiter = ',', default_value = "1,0", value_parser = super::threads_arg())]
     threads: Vec<usize>,
@@ -89,8 +90,12 @@ pub(super) fn run(mut a: BenchArgs) -> Result<serde_json::Value, CliError> {
     unique(&mut a.threads);
     // Options of one mode that the other would silently ignore.
     let ignored = match a.frames {
-        Some(_) => [("--dump", a.dump.is_some()), ("--time", a.time.is_some())],
-        None => [("--motion", a.motion.is_some()), ("", false)],
+        Some(_) => [
+            ("--dump", a.dump.is_some()),
+            ("--time", a.time.is_some()),
+            ("--runs", a.runs.is_some()),
+        ],
+        None => [("--motion", a.motion.is_some()), ("", false), ("", false)],
     };
     if let Some((flag, _)) = ignored.iter().find(|(_, given)| *given) {
         return Err(CliError::Usage(if a.frames.is_some() {
@@ -110,7 +115,7 @@ pub(super) fn run(mut a: BenchArgs) -> Result<serde_json::Value, CliError> {
         width: a.width,
         height: a.height,
         camera: a.camera.choice(),
-        runs: a.runs,
+        runs: a.runs.unwrap_or(5),
         threads: a.threads,
         seed: a.seed,
         build: a.build,
@@ -131,7 +136,7 @@ pub(super) fn run(mut a: BenchArgs) -> Result<serde_json::Value, CliError> {
             Ok(serde_json::Value::Null)
         }
         _ => {
-            eprintln!("{table}");
+            crate::note!("{table}");
             Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)
         }
     }
@@ -162,7 +167,7 @@ fn run_dynamic(a: BenchArgs, frames: usize) -> Result<serde_json::Value, CliErro
             "--format csv is not available with --frames (use json or table)".into(),
         )),
         _ => {
-            eprintln!("{table}");
+            crate::note!("{table}");
             Ok(serde_json::to_value(&report).map_err(|e| CliError::Usage(e.to_string()))?)
         }
     }

@@ -138,7 +138,7 @@ pub fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("rayd: error: {e}");
+            crate::note!("rayd: error: {e}");
             match e {
                 CliError::Stopped { number, .. } => ExitCode::from(128u8.saturating_add(number)),
                 _ => ExitCode::FAILURE,
@@ -336,7 +336,7 @@ impl StopOnSignal {
                 rt.block_on(async move {
                     let first = signals.next().await;
                     let _ = seen.set(first);
-                    eprintln!("rayd: {}: stopping (again to stop at once)", first.0);
+                    crate::note!("rayd: {}: stopping (again to stop at once)", first.0);
                     token.cancel();
                     let (_, number) = signals.next().await;
                     std::process::exit(128 + i32::from(number));

@@ -191,12 +191,13 @@ pub(super) fn run(a: TradeoffArgs) -> Result<serde_json::Value, CliError> {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| path.clone());
-    eprintln!(
+    crate::note!(
         "rayd tradeoff: rendering the reference ({} spp, {} bounces)",
-        setup.reference_spp, setup.reference_bounces
+        setup.reference_spp,
+        setup.reference_bounces
     );
     let result = crate::tradeoff::run(&name, &frame, &setup, &mut |k, n, row| {
-        eprintln!(
+        crate::note!(
             "rayd tradeoff: {}/{} {:<8} {:<22} {:>8.3} s  RMSE {:.5}",
             k + 1,
             n,

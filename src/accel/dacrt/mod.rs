@@ -249,7 +249,7 @@ impl Dacrt {
                 .for_each(|(hs, rs)| finish_hits::<T>(&self.tris, hs, rs, refines));
         }
         if let Some(s) = &stats {
-            eprintln!(
+            crate::note!(
                 "{}",
                 s.summary(self.name, rays.len(), t0.elapsed().as_secs_f64())
             );
