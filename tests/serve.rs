@@ -129,14 +129,7 @@ fn the_service_end_to_end() {
             ],
         })
         .collect();
-    let tri = s.req(
-        "POST",
-        "/v1/scenes",
-        &[("Content-Type", "application/x-rayd-tri")],
-        &write_tri(&tris),
-    );
-    assert_eq!(tri.status, 201);
-    assert_eq!(tri.json()["triangles"], 10);
+    assert_eq!(s.upload_tri(&tris)["triangles"], 10);
     let list = s.req("GET", "/v1/scenes?limit=1", &[], &[]).json();
     assert_eq!(list["scenes"].as_array().unwrap().len(), 1);
     assert!(list["next_page_token"].is_string());
@@ -1121,14 +1114,7 @@ fn abandoned_traces_give_up_their_places() {
             }
         })
         .collect();
-    let scene = s.req(
-        "POST",
-        "/v1/scenes",
-        &[("Content-Type", "application/x-rayd-tri")],
-        &write_tri(&tris),
-    );
-    assert_eq!(scene.status, 201);
-    let id = scene.json()["id"].as_str().unwrap().to_string();
+    let id = s.upload_tri(&tris)["id"].as_str().unwrap().to_string();
     let rays = |n| write_rays(&rays_at([0.0, 0.0, -1.0], [1.0, 1.0, 1.0], n));
     let long = rays(40_000);
     let octet = ("Content-Type", "application/octet-stream");

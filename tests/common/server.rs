@@ -82,6 +82,18 @@ impl Server {
         self.try_request(method, path, headers, body).unwrap()
     }
 
+    /// Uploads `tris` as a TRI1 scene (`201` asserted): its summary.
+    pub fn upload_tri(&self, tris: &[rayd::geometry::Triangle]) -> serde_json::Value {
+        let r = self.req(
+            "POST",
+            "/v1/scenes",
+            &[("Content-Type", "application/x-rayd-tri")],
+            &rayd::formats::binary::write_tri(tris),
+        );
+        assert_eq!(r.status, 201, "{}", String::from_utf8_lossy(&r.body));
+        r.json()
+    }
+
     /// Uploads the repository's sample scene `name` (a `.glb`) as a new scene: its summary.
     pub fn upload_sample(&self, name: &str) -> serde_json::Value {
         let bytes = std::fs::read(scenes().join(name)).unwrap();
