@@ -24,7 +24,7 @@ use lights::{power_heuristic, LightPick, LightSampler};
 use rayon::prelude::*;
 use rng::Pcg32;
 use sampling::{basis, cosine_hemisphere, normalize};
-use surface::{offset_ray, surface_point, Presence, Surfaces};
+use surface::{offset_ray, surface_point, Located, Presence, Surfaces};
 
 /// What a pixel shows.
 #[derive(
@@ -1065,13 +1065,21 @@ fn trace_paths(
     for bounce in 0..=options.bounces {
         // A vertex reached after `bounce` scatterings may scatter once more.
         let scatter = bounce < options.bounces;
-        steps.clear();
-        let lanes = live.state.par_iter_mut().zip(&mut live.rays[..]);
-        steps.par_extend(
-            lanes
-                .zip(&live.hits[..])
-                .map(|((p, ray), hit)| shade_vertex(frame, p, ray, hit, bounce, scatter, sky)),
-        );
+        // Every step is written: the list only grows, and keeps the last wave's steps
+        // rather than being cleared and filled again on one thread.
+        let n = live.state.len();
+        if steps.len() < n {
+            steps.resize_with(n, Step::default);
+        }
+        let steps = &mut steps[..n];
+        steps
+            .par_chunks_mut(SHADE_CHUNK)
+            .zip(live.state.par_chunks_mut(SHADE_CHUNK))
+            .zip(live.rays.par_chunks_mut(SHADE_CHUNK))
+            .zip(live.hits.par_chunks(SHADE_CHUNK))
+            .for_each(|(((steps, state), rays), hits)| {
+                shade_run(frame, steps, state, rays, hits, (bounce, scatter, sky))
+            });
         shadows.rays.clear();
         shadows.gain.clear();
         shadows.pixel.clear();
@@ -1109,13 +1117,60 @@ fn trace_paths(
     }
 }
 
-/// Shades the vertex path `p` reached after `bounce` scatterings: its `ray` found `hit`.
-/// A path that scatters on becomes its continuation in place (`p` and `ray`).
+/// Paths a shading task takes at once: the run [`shade_run`] prefetches along.
+const SHADE_CHUNK: usize = 256;
+
+/// How many vertices ahead of the one it shades [`shade_run`] locates a hit and
+/// prefetches its texels: enough for a miss to arrive (about 100 ns, half a vertex's
+/// shading) without crowding the cache's fill buffers (up to eight lines a vertex).
+const SHADE_AHEAD: usize = 4;
+
+/// Shades a run of path vertices ([`shade_vertex`] each, in order), each hit located and
+/// its texels prefetched [`SHADE_AHEAD`] vertices before it is shaded.
+fn shade_run(
+    frame: Frame<'_>,
+    steps: &mut [Step],
+    state: &mut [PathState],
+    rays: &mut [Ray],
+    hits: &[Hit],
+    (bounce, scatter, sky): (u32, bool, Vec3),
+) {
+    let locate = |p: &PathState, ray: &Ray, hit: &Hit| {
+        hit.is_hit().then(|| {
+            let tri = &frame.triangles[hit.prim as usize];
+            let width = p.cone.width_at(p.travelled + hit.t);
+            let l = frame.surfaces.locate(tri, hit, Vec3::from(ray.dir), width);
+            frame.surfaces.prefetch(&l);
+            l
+        })
+    };
+    let n = steps.len();
+    let mut ahead: [Option<Located>; SHADE_AHEAD] = [None; SHADE_AHEAD];
+    for (i, slot) in ahead.iter_mut().enumerate().take(n) {
+        *slot = locate(&state[i], &rays[i], &hits[i]);
+    }
+    for i in 0..n {
+        let here = ahead[i % SHADE_AHEAD].take();
+        let next = i + SHADE_AHEAD;
+        if next < n {
+            ahead[next % SHADE_AHEAD] = locate(&state[next], &rays[next], &hits[next]);
+        }
+        let (p, ray, hit) = (&mut state[i], &mut rays[i], &hits[i]);
+        steps[i] = shade_vertex(frame, p, ray, hit, here, bounce, scatter, sky);
+    }
+}
+
+/// Shades the vertex path `p` reached after `bounce` scatterings: its `ray` found `hit`,
+/// `located` on its surface ([`Surfaces::locate`]; `None` for a miss). A path that scatters
+/// on becomes its continuation in place (`p` and `ray`).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
 fn shade_vertex(
     frame: Frame<'_>,
     p: &mut PathState,
     ray: &mut Ray,
     hit: &Hit,
+    located: Option<Located>,
     bounce: u32,
     scatter: bool,
     sky: Vec3,
@@ -1123,7 +1178,7 @@ fn shade_vertex(
     let thr = p.throughput;
     let dir = Vec3::from(ray.dir);
     let lights = frame.lights;
-    if !hit.is_hit() {
+    let Some(located) = located else {
         // The sky, weighted against the chance that light sampling found the direction.
         let w = if p.prev_pdf > 0.0 {
             power_heuristic(p.prev_pdf, lights.sky_pdf(p.prev_ns, dir))
@@ -1134,10 +1189,10 @@ fn shade_vertex(
             emitted: thr * sky * w,
             ..Step::default()
         };
-    }
+    };
     let tri = &frame.triangles[hit.prim as usize];
     let width = p.cone.width_at(p.travelled + hit.t);
-    let sp = frame.surfaces.at(tri, hit, dir, width);
+    let sp = frame.surfaces.finish(tri, &located);
     let pos = Vec3::from(surface_point(tri, hit.u, hit.v));
     let mut emitted = thr * sp.emission;
     if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
@@ -1191,9 +1246,22 @@ fn shade_vertex(
                 let wi = d / dist;
                 let cos_light = normal.dot(wi).abs();
                 let pdf = pdf_area * dist * dist / cos_light;
-                let le = frame.surfaces.emission_at(prim as usize, b);
-                (dist > 0.0 && pdf > 0.0 && pdf.is_finite() && le != Vec3::ZERO)
-                    .then(|| (wi, dist, le / pdf, pdf))
+                // Only a point the vertex can receive from is read (its texel may be a
+                // cache miss), through the ray cone that BRDF sampling would have sent
+                // there: the lookup `Surfaces::at` makes when such a ray hits it.
+                let seen = dist > 0.0 && pdf > 0.0 && pdf.is_finite() && wi.dot(sp.ng) > 0.0;
+                seen.then(|| {
+                    let cone = p.cone.scattered(width, sp.bsdf.pdf(wo, local(wi)));
+                    let le = frame.surfaces.emission_at(
+                        emitter,
+                        prim as usize,
+                        b,
+                        cone.width_at(dist),
+                        cos_light,
+                    );
+                    (wi, dist, le / pdf, pdf)
+                })
+                .filter(|&(_, _, li, _)| li != Vec3::ZERO)
             }
             Some(LightPick::Sky) => {
                 let wi = Vec3::from(cosine_hemisphere(sp.ns.to_array(), u[1], u[2]));

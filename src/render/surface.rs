@@ -151,6 +151,19 @@ pub struct SurfacePoint {
     pub emission: Vec3,
 }
 
+/// A hit located on its surface, its textures not yet read ([`Surfaces::locate`]).
+#[derive(Clone, Copy)]
+pub struct Located {
+    prim: usize,
+    at: Interp,
+    /// The triangle's unit normal as wound.
+    face: Vec3,
+    /// The same, turned towards the ray.
+    ng: Vec3,
+    /// Where the material's textures are read; `None` when it has none.
+    uv: Option<Lookup>,
+}
+
 /// Whether a hit surface stops a ray there (glTF `alphaMode`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Presence {
@@ -496,22 +509,34 @@ impl Surfaces {
         factor * sum / SUBDIVISION_CENTROIDS.len() as f32
     }
 
-    /// Material `m`'s emissive texture (white without one) at barycentric point `b` of
-    /// triangle `prim`, at level 0: the texture term of [`Surfaces::emission_at`].
-    fn emissive_texel(&self, m: &Material, prim: usize, b: [f32; 3]) -> Vec3 {
-        let at = self.interp(prim, b);
-        self.point_texel(prim, m, 3, &at).truncate()
-    }
-
-    /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
-    /// probability that the surface is there: what a light sample of that point sees.
-    pub fn emission_at(&self, prim: usize, b: [f32; 3]) -> Vec3 {
+    /// Radiance emitted at barycentric point `b` of triangle `prim` (`tri`; both sides),
+    /// times the probability that the surface is there: what a light sample of that point
+    /// sees. Its emissive texture is read as [`Surfaces::at`] reads it for a ray whose cone
+    /// is `width` wide there and meets the surface at cosine `cos`: light sampling passes
+    /// the cone that a BRDF-sampled ray to the point would have, so that multiple importance
+    /// sampling weighs two estimates of one integrand (at level 0, the light samples read a
+    /// sharper emission than the BRDF samples' hits). The cone of a diffuse scattering
+    /// reads a coarse level, which stays in cache, where level 0 of DamagedHelmet's 2048²
+    /// texture missed it on nearly every sample.
+    pub fn emission_at(
+        &self,
+        tri: &Triangle,
+        prim: usize,
+        b: [f32; 3],
+        width: f32,
+        cos: f32,
+    ) -> Vec3 {
         let m = self.material(prim);
         let factor = emissive(m);
         if factor == Vec3::ZERO {
             return Vec3::ZERO;
         }
-        let e = factor * self.emissive_texel(m, prim, b);
+        let e = if m.emissive_texture.is_some() {
+            let at = self.lookup(tri, &self.interp(prim, b), width, cos);
+            factor * self.texel(prim, m, 3, &at).truncate()
+        } else {
+            factor
+        };
         if m.alpha_mode == AlphaMode::Opaque {
             return e;
         }
@@ -526,8 +551,15 @@ impl Surfaces {
 
     /// The surface at `hit` of triangle `tri` for a ray of direction `dir` whose cone is
     /// `width` wide there (0: a point); the width chooses the textures' MIP levels
-    /// ([`super::mipmap`]).
+    /// ([`super::mipmap`]). [`Surfaces::locate`] then [`Surfaces::finish`].
     pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> SurfacePoint {
+        self.finish(tri, &self.locate(tri, hit, dir, width))
+    }
+
+    /// Where `hit` lies on its surface and where its textures will be read, before any
+    /// texel is: the first half of [`Surfaces::at`], so that a caller shading many points
+    /// can [`Surfaces::prefetch`] the texels of a point a few ahead of the one it shades.
+    pub fn locate(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> Located {
         let prim = hit.prim as usize;
         let face = Vec3::from(tri.normal()).normalize_or_zero();
         // glTF winds a mirrored placement's front faces clockwise.
@@ -539,24 +571,59 @@ impl Surfaces {
         let ng = if face.dot(dir) > 0.0 { -face } else { face };
         let at = self.interp(prim, [1.0 - hit.u - hit.v, hit.u, hit.v]);
         let m = self.material(prim);
-        let refs = slots(m);
         let has_specular = m.specular.texture.is_some() || m.specular.color_texture.is_some();
         // The footprint only where a texture will read it.
-        if refs.iter().all(Option::is_none) && !has_specular {
-            return self.shaded(m, tri, &at, face, ng, [None; 4], [None; 2]);
+        let uv = (slots(m).iter().any(Option::is_some) || has_specular)
+            .then(|| self.lookup(tri, &at, width, ng.dot(dir).abs()));
+        Located {
+            prim,
+            at,
+            face,
+            ng,
+            uv,
         }
-        let uv = self.lookup(tri, &at, width, ng.dot(dir).abs());
+    }
+
+    /// Asks the caches for the texel records that [`Surfaces::finish`] of `l` will read
+    /// from its material's bundle: a 2048² bundle is 64 MiB a level, and a lookup's four
+    /// taps on two levels miss the caches more often than not (a fifth of DamagedHelmet's
+    /// shading waited on them). Only a hint: it changes no value.
+    #[inline]
+    pub fn prefetch(&self, l: &Located) {
+        if let (Some(uv), Some(b)) = (&l.uv, self.bundle(l.prim)) {
+            let (uv, log2_width) = uv.set(b.tex_coord());
+            b.prefetch(uv, log2_width);
+        }
+    }
+
+    /// The surface point that [`Surfaces::locate`] found: its textures read and its
+    /// material resolved.
+    pub fn finish(&self, tri: &Triangle, l: &Located) -> SurfacePoint {
+        let Located {
+            prim,
+            at,
+            face,
+            ng,
+            uv,
+        } = *l;
+        let m = self.material(prim);
+        let Some(uv) = uv else {
+            return self.shaded(m, tri, &at, face, ng, [None; 4], [None; 2]);
+        };
         // The four lookups: from the material's bundle (one record a tap) when it has one.
         let texels = match self.bundle(prim) {
             Some(b) => {
                 let (uv, log2_width) = uv.set(b.tex_coord());
                 b.sample(uv, log2_width)
             }
-            None => std::array::from_fn(|k| {
-                refs[k].and_then(|r| self.textures.sample(&r, &uv, SLOT_IS_COLOUR[k]))
-            }),
+            None => {
+                let refs = slots(m);
+                std::array::from_fn(|k| {
+                    refs[k].and_then(|r| self.textures.sample(&r, &uv, SLOT_IS_COLOUR[k]))
+                })
+            }
         };
-        let specular = if has_specular {
+        let specular = if m.specular.texture.is_some() || m.specular.color_texture.is_some() {
             specular_slots(m)
                 .map(|(r, colour)| r.and_then(|r| self.textures.sample(&r, &uv, colour)))
         } else {
@@ -918,6 +985,72 @@ mod tests {
 
     /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
     /// `specularTexture`, the colour by the RGB of `specularColorTexture` (sRGB-decoded).
+    /// A light sample of a point on an emissive-textured triangle reads the emission that
+    /// a BRDF-sampled ray of the same cone reads when it hits the point, so that multiple
+    /// importance sampling weighs two estimates of one integrand; and the cone matters.
+    #[test]
+    fn light_samples_read_emission_through_the_cone_a_hit_would() {
+        use super::super::texture::{Texels, TextureSet};
+        use crate::render::mipmap::Filtering;
+        use crate::scene::Sampler;
+        let tri = Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        };
+        let mut shading = Shading::flat(1);
+        shading.materials = vec![0];
+        shading.uv0 = vec![Vec2::ZERO, Vec2::X, Vec2::Y];
+        let material = Material {
+            emissive_factor: [1.0, 0.5, 0.25],
+            emissive_texture: Some(TextureRef {
+                texture: 0,
+                tex_coord: 0,
+                transform: None,
+            }),
+            ..Material::default()
+        };
+        let n = 64;
+        let checker = (0..n * n)
+            .map(|i| {
+                let v = ((i % n / 8 + i / n / 8) % 2) as f32;
+                [v, v, v, 1.0]
+            })
+            .collect();
+        let texels = Texels::from_rgba(n, n, checker).unwrap();
+        let filtering = Filtering::of(&Sampler::default());
+        let textures = TextureSet::from_texels(vec![(texels, filtering)]);
+        let s = Surfaces::from_parts(shading, vec![material], textures, Vec::new());
+        for (u, v) in [(0.2, 0.3), (0.61, 0.07), (0.05, 0.9)] {
+            for width in [0.0, 1e-3, 0.02, 0.3, 5.0] {
+                for cos in [1.0f32, 0.5, 0.1] {
+                    let dir = Vec3::new((1.0 - cos * cos).sqrt(), 0.0, -cos);
+                    let hit = Hit {
+                        t: 1.0,
+                        u,
+                        v,
+                        prim: 0,
+                    };
+                    let by_hit = s.at(&tri, &hit, dir, width).emission;
+                    let by_light = s.emission_at(&tri, 0, [1.0 - u - v, u, v], width, cos);
+                    assert_eq!(by_light, by_hit, "({u}, {v}), width {width}, cos {cos}");
+                }
+            }
+        }
+        // A point reads one square of the checker; a cone wider than the triangle, its mean.
+        let b = [0.5, 0.3, 0.2];
+        let (point, wide) = (
+            s.emission_at(&tri, 0, b, 0.0, 1.0),
+            s.emission_at(&tri, 0, b, 5.0, 1.0),
+        );
+        assert!(
+            point == Vec3::ZERO || point == Vec3::new(1.0, 0.5, 0.25),
+            "{point}"
+        );
+        assert!(
+            (wide - Vec3::new(0.5, 0.25, 0.125)).abs().max_element() < 0.05,
+            "{wide}"
+        );
+    }
+
     #[test]
     fn specular_textures_scale_the_specular_factors() {
         use super::super::texture::{Texels, TextureSet};

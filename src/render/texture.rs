@@ -314,6 +314,13 @@ pub(crate) trait Blend: Copy {
     fn blend(self, b: Self, t: f32) -> Self;
 }
 
+/// Nothing to blend: what a pass over the levels a lookup reads returns when it only
+/// touches them ([`super::bundle::Bundle::prefetch`]).
+impl Blend for () {
+    #[inline(always)]
+    fn blend(self, _: (), _: f32) {}
+}
+
 impl Blend for Vec4 {
     #[inline(always)]
     fn blend(self, b: Vec4, t: f32) -> Vec4 {
