@@ -770,12 +770,17 @@ impl App {
         let needs_surfaces = request.needs_surfaces();
         // Found in the engine's cache (or decoded into it) by the first frame that shades.
         let textures = DecodedOnce::default();
-        let frame_at = |time: Option<f64>| {
+        let frame_at = |time: Option<f64>, control: &crate::jobs::Control| {
             let time = time.filter(|_| version == Some(1));
-            let (geometry, cameras) = rt
-                .block_on(self.geometry(&scene, version, time))
-                .map_err(|e| JobError::Geometry(e.to_string()))?;
-            let surfaces = if needs_surfaces {
+            // The geometry and the parsed scene (posed) in one step; the textures, on the
+            // first frame, in steps of their own; the surfaces in a last one.
+            let (geometry, cameras, shaded) = control.step(|| -> Result<_, JobError> {
+                let (geometry, cameras) = rt
+                    .block_on(self.geometry(&scene, version, time))
+                    .map_err(|e| JobError::Geometry(e.to_string()))?;
+                if !needs_surfaces {
+                    return Ok((geometry, cameras, None));
+                }
                 let shaded = rt
                     .block_on(self.shaded_scene(&scene))
                     .map_err(|e| JobError::Geometry(e.to_string()))?;
@@ -787,20 +792,25 @@ impl App {
                     ),
                     None => None,
                 };
-                let decoded = textures
-                    .get_or(|| {
-                        self.engine()
-                            .textures()
-                            .get_or_decode(&scene, || TextureSet::of(&shaded))
-                    })
-                    .map_err(|e| JobError::Geometry(e.to_string()))?;
-                Some(Arc::new(Surfaces::with_textures(
-                    posed.as_ref().unwrap_or(&shaded),
-                    (**decoded).clone(),
-                )))
-            } else {
-                None
-            };
+                Ok((geometry, cameras, Some((shaded, posed))))
+            })??;
+            let surfaces =
+                match shaded {
+                    Some((shaded, posed)) => {
+                        // Cancellation between the steps stays a cancellation.
+                        let decoded = textures.get_or(|| {
+                            self.engine().textures().get_or_decode(&scene, || {
+                                TextureSet::in_steps(&shaded, &|part| control.step(part))?
+                                    .map_err(|e| JobError::Geometry(e.to_string()))
+                            })
+                        })?;
+                        let posed = posed.as_ref().unwrap_or(&*shaded);
+                        Some(control.step(|| {
+                            Arc::new(Surfaces::with_textures(posed, (**decoded).clone()))
+                        })?)
+                    }
+                    None => None,
+                };
             Ok(FrameInput {
                 geometry,
                 cameras,

@@ -221,8 +221,9 @@ impl App {
             ..RenderRequest::default()
         };
         let rt = &self.inner.runtime;
-        let frame_at = |_time: Option<f64>| {
-            rt.block_on(self.geometry(id, Some(1), None))
+        let frame_at = |_time: Option<f64>, control: &crate::jobs::Control| {
+            control
+                .step(|| rt.block_on(self.geometry(id, Some(1), None)))?
                 .map(|(geometry, cameras)| FrameInput {
                     geometry,
                     cameras,

@@ -146,12 +146,12 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
     };
     let scene = crate::formats::load_scene_with(&a.scene, &Default::default(), parts)?;
     let textures = crate::render::texture::DecodedOnce::default();
-    let frame_at = |time: Option<f64>| {
+    let frame_at = |time: Option<f64>, control: &crate::jobs::Control| {
         let posed = match time {
             None => None,
             Some(t) => Some(
-                scene
-                    .at(t)
+                control
+                    .step(|| scene.at(t))?
                     .map_err(|e| crate::jobs::JobError::Geometry(format!("time {t}: {e}")))?,
             ),
         };
@@ -160,6 +160,7 @@ pub(super) fn run(a: RenderArgs) -> Result<serde_json::Value, CliError> {
             s,
             GeometryKey::new(&path, 1, time),
             surfaces.then_some(&textures),
+            &|part| control.step(part),
         )
     };
     let pattern = a.out.display().to_string();

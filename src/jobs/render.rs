@@ -11,7 +11,7 @@ use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
 use crate::render::surface::Surfaces;
-use crate::render::texture::DecodedOnce;
+use crate::render::texture::{DecodedOnce, Steps};
 use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
@@ -200,36 +200,49 @@ impl FrameInput {
         surfaces: bool,
     ) -> Result<FrameInput, JobError> {
         let textures = DecodedOnce::default();
-        FrameInput::of_scene_with(scene, key, surfaces.then_some(&textures))
+        let at_once = |part: &mut (dyn FnMut() + Send)| -> Result<(), JobError> {
+            part();
+            Ok(())
+        };
+        FrameInput::of_scene_with(scene, key, surfaces.then_some(&textures), &at_once)
     }
 
-    /// [`FrameInput::of_scene`] for one frame of a sequence: `textures`, when the request
-    /// needs surfaces, holds the textures an earlier frame decoded, or decodes them now.
+    /// [`FrameInput::of_scene`] for one frame of a sequence, its work done in `step`'s
+    /// steps (a [`Control`]'s on the pool): `textures`, when the request needs surfaces,
+    /// holds the textures an earlier frame decoded, or decodes them now, in steps of their
+    /// own ([`DecodedOnce::get_in_steps`]).
     pub fn of_scene_with(
         scene: &crate::scene::Scene,
         key: super::GeometryKey,
         textures: Option<&DecodedOnce>,
+        step: &Steps<'_, JobError>,
     ) -> Result<FrameInput, JobError> {
-        let surfaces = match textures {
-            Some(t) => {
-                let t = t
-                    .get(scene)
-                    .map_err(|e| JobError::Geometry(format!("{}: {e}", key.scene)))?;
-                Some(Arc::new(Surfaces::with_textures(scene, t.clone())))
-            }
+        let decoded = match textures {
+            Some(t) => Some(
+                t.get_in_steps(scene, step)?
+                    .map_err(|e| JobError::Geometry(format!("{}: {e}", key.scene)))?,
+            ),
             None => None,
         };
-        Ok(FrameInput {
-            geometry: Geometry {
-                key,
-                triangles: Arc::new(scene.triangles.clone()),
-                forgets: 0,
-            },
-            cameras: Arc::new(scene.cameras.clone()),
-            surfaces,
-        })
+        let mut input = None;
+        step(&mut || {
+            input = Some(FrameInput {
+                geometry: Geometry {
+                    key: key.clone(),
+                    triangles: Arc::new(scene.triangles.clone()),
+                    forgets: 0,
+                },
+                cameras: Arc::new(scene.cameras.clone()),
+                surfaces: decoded.map(|t| Arc::new(Surfaces::with_textures(scene, t.clone()))),
+            })
+        })?;
+        Ok(input.expect("the step ran"))
     }
 }
+
+/// What [`Engine::render`] asks for each frame's scene: called with the frame's time and
+/// the job's control, it does its work in the control's steps.
+pub type FrameAt<'a> = dyn Fn(Option<f64>, &Control) -> Result<FrameInput, JobError> + Sync + 'a;
 
 /// Where one frame's time went.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -306,12 +319,14 @@ impl Engine {
     /// Renders one image per entry of `times`, asking `frame_at` for each time's scene,
     /// and hands each encoded image to `emit` (frame index, bytes) as soon as it is done.
     /// Every CPU step runs on the pool under `control`'s lease; cancellation stops the job
-    /// within one wave.
+    /// within one wave. `frame_at` is called on the caller's thread with `control`, and
+    /// runs its own work in `control`'s steps: a scene's textures take several (one per
+    /// group of images), so that a request arriving meanwhile waits for one image, not all.
     pub fn render(
         &self,
         request: &RenderRequest,
         times: &[Option<f64>],
-        frame_at: &(dyn Fn(Option<f64>) -> Result<FrameInput, JobError> + Sync),
+        frame_at: &FrameAt<'_>,
         control: &Control,
         emit: &mut dyn FnMut(usize, Vec<u8>) -> Result<(), JobError>,
     ) -> Result<RenderReport, JobError> {
@@ -320,7 +335,7 @@ impl Engine {
         let mut frames = Vec::with_capacity(times.len());
         for (k, &time) in times.iter().enumerate() {
             let t0 = Instant::now();
-            let input = control.step(|| frame_at(time))??;
+            let input = frame_at(time, control)?;
             let evaluate_seconds = seconds_since(t0);
             let g = &input.geometry;
             let aspect = request.width as f64 / request.height as f64;

@@ -1135,11 +1135,15 @@ fn shade_run(
     hits: &[Hit],
     (bounce, scatter, sky): (u32, bool, Vec3),
 ) {
+    // A vertex after a scattering reads emission at level 0 (`Surfaces::locate`).
+    let scattered = bounce > 0;
     let locate = |p: &PathState, ray: &Ray, hit: &Hit| {
         hit.is_hit().then(|| {
             let tri = &frame.triangles[hit.prim as usize];
             let width = p.cone.width_at(p.travelled + hit.t);
-            let l = frame.surfaces.locate(tri, hit, Vec3::from(ray.dir), width);
+            let l = frame
+                .surfaces
+                .locate(tri, hit, Vec3::from(ray.dir), width, scattered);
             frame.surfaces.prefetch(&l);
             l
         })
@@ -1246,20 +1250,16 @@ fn shade_vertex(
                 let wi = d / dist;
                 let cos_light = normal.dot(wi).abs();
                 let pdf = pdf_area * dist * dist / cos_light;
-                // Only a point the vertex can receive from is read (its texel may be a
-                // cache miss), through the ray cone that BRDF sampling would have sent
-                // there: the lookup `Surfaces::at` makes when such a ray hits it.
+                // Only a point the vertex can receive from is read (its texel is often a
+                // cache miss).
                 let seen = dist > 0.0 && pdf > 0.0 && pdf.is_finite() && wi.dot(sp.ng) > 0.0;
                 seen.then(|| {
-                    let cone = p.cone.scattered(width, sp.bsdf.pdf(wo, local(wi)));
-                    let le = frame.surfaces.emission_at(
-                        emitter,
-                        prim as usize,
-                        b,
-                        cone.width_at(dist),
-                        cos_light,
-                    );
-                    (wi, dist, le / pdf, pdf)
+                    (
+                        wi,
+                        dist,
+                        frame.surfaces.emission_at(prim as usize, b) / pdf,
+                        pdf,
+                    )
                 })
                 .filter(|&(_, _, li, _)| li != Vec3::ZERO)
             }

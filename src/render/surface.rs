@@ -162,6 +162,9 @@ pub struct Located {
     ng: Vec3,
     /// Where the material's textures are read; `None` when it has none.
     uv: Option<Lookup>,
+    /// Whether its emissive texture is read at level 0 (after a scattering) rather than
+    /// through `uv`'s footprint.
+    emission_at_point: bool,
 }
 
 /// Whether a hit surface stops a ray there (glTF `alphaMode`).
@@ -509,31 +512,23 @@ impl Surfaces {
         factor * sum / SUBDIVISION_CENTROIDS.len() as f32
     }
 
-    /// Radiance emitted at barycentric point `b` of triangle `prim` (`tri`; both sides),
-    /// times the probability that the surface is there: what a light sample of that point
-    /// sees. Its emissive texture is read as [`Surfaces::at`] reads it for a ray whose cone
-    /// is `width` wide there and meets the surface at cosine `cos`: light sampling passes
-    /// the cone that a BRDF-sampled ray to the point would have, so that multiple importance
-    /// sampling weighs two estimates of one integrand (at level 0, the light samples read a
-    /// sharper emission than the BRDF samples' hits). The cone of a diffuse scattering
-    /// reads a coarse level, which stays in cache, where level 0 of DamagedHelmet's 2048²
-    /// texture missed it on nearly every sample.
-    pub fn emission_at(
-        &self,
-        tri: &Triangle,
-        prim: usize,
-        b: [f32; 3],
-        width: f32,
-        cos: f32,
-    ) -> Vec3 {
+    /// Radiance emitted at barycentric point `b` of triangle `prim` (both sides), times the
+    /// probability that the surface is there: what a light sample of that point sees. The
+    /// emissive texture is read at level 0, as [`Surfaces::finish`] reads it for a hit
+    /// after a scattering: glTF's emission there, not a cone's average of it (a scattered
+    /// cone is wide, and its average lit a floor under a textured emitter 2.7× too dark
+    /// beside the emitter's bright texel and 14× too bright away from it).
+    pub fn emission_at(&self, prim: usize, b: [f32; 3]) -> Vec3 {
         let m = self.material(prim);
         let factor = emissive(m);
         if factor == Vec3::ZERO {
             return Vec3::ZERO;
         }
         let e = if m.emissive_texture.is_some() {
-            let at = self.lookup(tri, &self.interp(prim, b), width, cos);
-            factor * self.texel(prim, m, 3, &at).truncate()
+            factor
+                * self
+                    .point_texel(prim, m, 3, &self.interp(prim, b))
+                    .truncate()
         } else {
             factor
         };
@@ -549,17 +544,28 @@ impl Surfaces {
         e * self.presence(&hit).coverage()
     }
 
-    /// The surface at `hit` of triangle `tri` for a ray of direction `dir` whose cone is
-    /// `width` wide there (0: a point); the width chooses the textures' MIP levels
+    /// The surface at `hit` of triangle `tri` for a camera ray of direction `dir` whose
+    /// cone is `width` wide there (0: a point); the width chooses the textures' MIP levels
     /// ([`super::mipmap`]). [`Surfaces::locate`] then [`Surfaces::finish`].
     pub fn at(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> SurfacePoint {
-        self.finish(tri, &self.locate(tri, hit, dir, width))
+        self.finish(tri, &self.locate(tri, hit, dir, width, false))
     }
 
     /// Where `hit` lies on its surface and where its textures will be read, before any
     /// texel is: the first half of [`Surfaces::at`], so that a caller shading many points
     /// can [`Surfaces::prefetch`] the texels of a point a few ahead of the one it shades.
-    pub fn locate(&self, tri: &Triangle, hit: &Hit, dir: Vec3, width: f32) -> Located {
+    /// `scattered`: the ray left a scattering (not the camera), so the emissive texture is
+    /// read at level 0 rather than through the cone, as light sampling reads it
+    /// ([`Surfaces::emission_at`]): the cone's filtering anti-aliases what the camera
+    /// sees, but a scattered cone's average is not the light a surface sends.
+    pub fn locate(
+        &self,
+        tri: &Triangle,
+        hit: &Hit,
+        dir: Vec3,
+        width: f32,
+        scattered: bool,
+    ) -> Located {
         let prim = hit.prim as usize;
         let face = Vec3::from(tri.normal()).normalize_or_zero();
         // glTF winds a mirrored placement's front faces clockwise.
@@ -575,12 +581,15 @@ impl Surfaces {
         // The footprint only where a texture will read it.
         let uv = (slots(m).iter().any(Option::is_some) || has_specular)
             .then(|| self.lookup(tri, &at, width, ng.dot(dir).abs()));
+        let emission_at_point =
+            scattered && m.emissive_texture.is_some() && emissive(m) != Vec3::ZERO;
         Located {
             prim,
             at,
             face,
             ng,
             uv,
+            emission_at_point,
         }
     }
 
@@ -593,6 +602,9 @@ impl Surfaces {
         if let (Some(uv), Some(b)) = (&l.uv, self.bundle(l.prim)) {
             let (uv, log2_width) = uv.set(b.tex_coord());
             b.prefetch(uv, log2_width);
+            if l.emission_at_point {
+                b.prefetch(uv, f32::NEG_INFINITY);
+            }
         }
     }
 
@@ -605,6 +617,7 @@ impl Surfaces {
             face,
             ng,
             uv,
+            emission_at_point,
         } = *l;
         let m = self.material(prim);
         let Some(uv) = uv else {
@@ -629,6 +642,10 @@ impl Surfaces {
         } else {
             [None; 2]
         };
+        let mut texels = texels;
+        if emission_at_point {
+            texels[3] = Some(self.texel(prim, m, 3, &Lookup::point(uv.uv)));
+        }
         self.shaded(m, tri, &at, face, ng, texels, specular)
     }
 
@@ -985,11 +1002,12 @@ mod tests {
 
     /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
     /// `specularTexture`, the colour by the RGB of `specularColorTexture` (sRGB-decoded).
-    /// A light sample of a point on an emissive-textured triangle reads the emission that
-    /// a BRDF-sampled ray of the same cone reads when it hits the point, so that multiple
-    /// importance sampling weighs two estimates of one integrand; and the cone matters.
+    /// After a scattering, a light sample of a point on an emissive-textured triangle and
+    /// a BRDF-sampled ray that hits it read the same emission, the texture's at level 0,
+    /// however wide their cones (multiple importance sampling weighs two estimates of one
+    /// integrand, and the integrand is glTF's); a camera ray reads it through its cone.
     #[test]
-    fn light_samples_read_emission_through_the_cone_a_hit_would() {
+    fn scattered_rays_and_light_samples_read_emission_at_level_zero() {
         use super::super::texture::{Texels, TextureSet};
         use crate::render::mipmap::Filtering;
         use crate::scene::Sampler;
@@ -999,8 +1017,9 @@ mod tests {
         let mut shading = Shading::flat(1);
         shading.materials = vec![0];
         shading.uv0 = vec![Vec2::ZERO, Vec2::X, Vec2::Y];
+        let colour = Vec3::new(1.0, 0.5, 0.25);
         let material = Material {
-            emissive_factor: [1.0, 0.5, 0.25],
+            emissive_factor: colour.to_array(),
             emissive_texture: Some(TextureRef {
                 texture: 0,
                 tex_coord: 0,
@@ -1020,35 +1039,29 @@ mod tests {
         let textures = TextureSet::from_texels(vec![(texels, filtering)]);
         let s = Surfaces::from_parts(shading, vec![material], textures, Vec::new());
         for (u, v) in [(0.2, 0.3), (0.61, 0.07), (0.05, 0.9)] {
+            let b = [1.0 - u - v, u, v];
+            let by_light = s.emission_at(0, b);
+            assert!(by_light == Vec3::ZERO || by_light == colour, "{by_light}");
             for width in [0.0, 1e-3, 0.02, 0.3, 5.0] {
-                for cos in [1.0f32, 0.5, 0.1] {
-                    let dir = Vec3::new((1.0 - cos * cos).sqrt(), 0.0, -cos);
-                    let hit = Hit {
-                        t: 1.0,
-                        u,
-                        v,
-                        prim: 0,
-                    };
-                    let by_hit = s.at(&tri, &hit, dir, width).emission;
-                    let by_light = s.emission_at(&tri, 0, [1.0 - u - v, u, v], width, cos);
-                    assert_eq!(by_light, by_hit, "({u}, {v}), width {width}, cos {cos}");
-                }
+                let hit = Hit {
+                    t: 1.0,
+                    u,
+                    v,
+                    prim: 0,
+                };
+                let l = s.locate(&tri, &hit, Vec3::NEG_Z, width, true);
+                assert_eq!(s.finish(&tri, &l).emission, by_light, "({u}, {v}), {width}");
             }
         }
-        // A point reads one square of the checker; a cone wider than the triangle, its mean.
-        let b = [0.5, 0.3, 0.2];
-        let (point, wide) = (
-            s.emission_at(&tri, 0, b, 0.0, 1.0),
-            s.emission_at(&tri, 0, b, 5.0, 1.0),
-        );
-        assert!(
-            point == Vec3::ZERO || point == Vec3::new(1.0, 0.5, 0.25),
-            "{point}"
-        );
-        assert!(
-            (wide - Vec3::new(0.5, 0.25, 0.125)).abs().max_element() < 0.05,
-            "{wide}"
-        );
+        // A camera ray's cone wider than the triangle reads the checker's mean.
+        let hit = Hit {
+            t: 1.0,
+            u: 0.3,
+            v: 0.2,
+            prim: 0,
+        };
+        let wide = s.at(&tri, &hit, Vec3::NEG_Z, 5.0).emission;
+        assert!((wide - 0.5 * colour).abs().max_element() < 0.05, "{wide}");
     }
 
     #[test]

@@ -619,12 +619,64 @@ fn check_declared_size(scene: &Scene, uses: &[[bool; 2]]) -> Result<(), TextureE
     Ok(())
 }
 
+/// Runs a part of some CPU work (a service job's step on the pool, or the part at once),
+/// or refuses to with `E` (the job was cancelled).
+pub type Steps<'a, E> = dyn Fn(&mut (dyn FnMut() + Send)) -> Result<(), E> + 'a;
+
+/// Image `image` of `scene` decoded, with its pyramid for each of `uses` (`[data,
+/// colour]`).
+fn pyramids_of(
+    scene: &Scene,
+    image: usize,
+    uses: [bool; 2],
+) -> Result<[Option<Arc<Pyramid>>; 2], TextureError> {
+    let im = &scene.images[image];
+    let base = Texels::decode(&im.bytes).map_err(|reason| TextureError::Decode {
+        image,
+        mime: im.mime_type.clone(),
+        reason,
+    })?;
+    Ok(match uses {
+        [true, true] => [
+            Some(Arc::new(Pyramid::new(base.clone(), false))),
+            Some(Arc::new(Pyramid::new(base, true))),
+        ],
+        [data, _] => {
+            let p = Some(Arc::new(Pyramid::new(base, !data)));
+            if data {
+                [p, None]
+            } else {
+                [None, p]
+            }
+        }
+    })
+}
+
 impl TextureSet {
     /// Decodes every image that a material of `scene` samples through a texture this
     /// renderer uses (base colour, metallic-roughness, normal, emissive, and
     /// `KHR_materials_specular`'s two), each image once,
     /// and builds its pyramid for each use.
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
+        let at_once = |part: &mut (dyn FnMut() + Send)| -> Result<(), std::convert::Infallible> {
+            part();
+            Ok(())
+        };
+        match TextureSet::in_steps(scene, &at_once) {
+            Ok(decoded) => decoded,
+            Err(never) => match never {},
+        }
+    }
+
+    /// [`TextureSet::of`] in parts, each run through `step` (a service job's step on the
+    /// pool, which a waiting request may go before): as many images at once as the pool
+    /// has threads, then the bundles. Decoding DamagedHelmet's four 2048² JPEGs held the
+    /// pool for up to 0.9 s as one step. The outer error is `step`'s (the job was
+    /// cancelled), the inner one the scene's.
+    pub fn in_steps<E>(
+        scene: &Scene,
+        step: &Steps<'_, E>,
+    ) -> Result<Result<TextureSet, TextureError>, E> {
         let mut used = vec![[false; 2]; scene.textures.len()];
         for m in &scene.materials {
             for (r, colour) in read_apart(m, false) {
@@ -641,41 +693,54 @@ impl TextureSet {
                 u[1] |= used[1];
             }
         }
-        check_declared_size(scene, &uses)?;
+        if let Err(e) = check_declared_size(scene, &uses) {
+            return Ok(Err(e));
+        }
         // On the pool, an image per task: decoding is serial within an image, and four
         // 2048² JPEGs one after another were most of a textured frame's preparation.
-        let pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = uses
-            .par_iter()
-            .enumerate()
-            .map(|(image, u)| -> Result<_, TextureError> {
-                if !(u[0] || u[1]) {
-                    return Ok([None, None]);
-                }
-                let im = &scene.images[image];
-                let base = Texels::decode(&im.bytes).map_err(|reason| TextureError::Decode {
-                    image,
-                    mime: im.mime_type.clone(),
-                    reason,
-                })?;
-                Ok(match *u {
-                    [true, true] => [
-                        Some(Arc::new(Pyramid::new(base.clone(), false))),
-                        Some(Arc::new(Pyramid::new(base, true))),
-                    ],
-                    [data, _] => {
-                        let p = Some(Arc::new(Pyramid::new(base, !data)));
-                        if data {
-                            [p, None]
-                        } else {
-                            [None, p]
+        let wanted: Vec<usize> = (0..uses.len())
+            .filter(|&i| uses[i][0] || uses[i][1])
+            .collect();
+        let mut pyramids: Vec<[Option<Arc<Pyramid>>; 2]> = vec![[None, None]; uses.len()];
+        let mut next = 0;
+        while next < wanted.len() {
+            let mut failed = None;
+            step(&mut || {
+                let group = &wanted[next..(next + rayon::current_num_threads()).min(wanted.len())];
+                let made: Vec<_> = group
+                    .par_iter()
+                    .map(|&image| pyramids_of(scene, image, uses[image]))
+                    .collect();
+                next += group.len();
+                for (&image, made) in group.iter().zip(made) {
+                    match made {
+                        Ok(p) => pyramids[image] = p,
+                        // The first failure in image order, whichever task met its own
+                        // first.
+                        Err(e) => {
+                            failed = Some(e);
+                            break;
                         }
                     }
-                })
-            })
-            .collect::<Vec<_>>()
-            .into_iter()
-            // The first failure in image order, whichever task met its own first.
-            .collect::<Result<_, _>>()?;
+                }
+            })?;
+            if let Some(e) = failed {
+                return Ok(Err(e));
+            }
+        }
+        let mut set = None;
+        step(&mut || set = Some(TextureSet::assemble(scene, used.clone(), &pyramids)))?;
+        Ok(Ok(set.expect("the step ran")))
+    }
+
+    /// The set of `scene`'s textures from its images' pyramids (`used`: each texture's
+    /// uses, `[data, colour]`): every texture bound to its sampler, and the materials'
+    /// bundles.
+    fn assemble(
+        scene: &Scene,
+        used: Vec<[bool; 2]>,
+        pyramids: &[[Option<Arc<Pyramid>>; 2]],
+    ) -> TextureSet {
         let mut textures: Vec<[Option<Bound>; 2]> = scene
             .textures
             .iter()
@@ -727,7 +792,7 @@ impl TextureSet {
                 }
             }
         }
-        Ok(TextureSet { textures, bundles })
+        TextureSet { textures, bundles }
     }
 
     /// Textures from decoded images, in texture-index order, each usable both ways (tests,
@@ -867,6 +932,21 @@ impl DecodedOnce {
     /// The textures of `scene` (decoded now if no frame has yet).
     pub fn get(&self, scene: &Scene) -> Result<&TextureSet, TextureError> {
         Ok(self.get_or(|| TextureSet::of(scene).map(Arc::new))?)
+    }
+
+    /// [`DecodedOnce::get`] in `step`'s steps ([`TextureSet::in_steps`]).
+    pub fn get_in_steps<E>(
+        &self,
+        scene: &Scene,
+        step: &Steps<'_, E>,
+    ) -> Result<Result<&TextureSet, TextureError>, E> {
+        if let Some(t) = self.0.get() {
+            return Ok(Ok(t));
+        }
+        Ok(match TextureSet::in_steps(scene, step)? {
+            Ok(t) => Ok(self.0.get_or_init(|| Arc::new(t))),
+            Err(e) => Err(e),
+        })
     }
 
     /// The textures an earlier frame got, or what `find` gives now (the service's cache of
@@ -1017,6 +1097,106 @@ mod tests {
                 .unwrap();
         }
         png
+    }
+
+    /// A scene of `images` 4 × 4 PNG base colour textures, one material each, image
+    /// `bad` (if any) not an image at all.
+    fn scene_of_images(images: usize, bad: Option<usize>) -> Scene {
+        use crate::scene::{Image, Material, Texture};
+        let png = |k: usize| {
+            let mut png = Vec::new();
+            {
+                let mut e = ::png::Encoder::new(&mut png, 4, 4);
+                e.set_color(::png::ColorType::Rgba);
+                let mut w = e.write_header().unwrap();
+                let data: Vec<u8> = (0..64).map(|i| (i * 7 + k * 31) as u8).collect();
+                w.write_image_data(&data).unwrap();
+            }
+            png
+        };
+        Scene {
+            images: (0..images)
+                .map(|k| Image {
+                    mime_type: "image/png".into(),
+                    bytes: if Some(k) == bad {
+                        b"not a png".to_vec().into()
+                    } else {
+                        png(k).into()
+                    },
+                })
+                .collect(),
+            textures: (0..images)
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials: (0..images)
+                .map(|t| Material {
+                    base_color_texture: Some(TextureRef {
+                        texture: t,
+                        tex_coord: 0,
+                        transform: None,
+                    }),
+                    ..Material::default()
+                })
+                .collect(),
+            ..Scene::default()
+        }
+    }
+
+    /// Decoding in steps gives the textures of one decode, in as many steps as the pool
+    /// takes images at once, plus one; a refused step (a cancelled job) stops it, and a
+    /// bad image ends it after its own step with the error that names it.
+    #[test]
+    fn textures_decode_in_steps_of_as_many_images_as_threads() {
+        let scene = scene_of_images(5, None);
+        let steps = std::cell::Cell::new(0);
+        let counted = |part: &mut (dyn FnMut() + Send)| -> Result<(), &str> {
+            steps.set(steps.get() + 1);
+            part();
+            Ok(())
+        };
+        let stepped = TextureSet::in_steps(&scene, &counted).unwrap().unwrap();
+        let whole = TextureSet::of(&scene).unwrap();
+        assert_eq!(
+            steps.get(),
+            5usize.div_ceil(rayon::current_num_threads()) + 1
+        );
+        assert_eq!(stepped.bytes(), whole.bytes());
+        for t in 0..5 {
+            let r = TextureRef {
+                texture: t,
+                tex_coord: 0,
+                transform: None,
+            };
+            for uv in [Vec2::new(0.1, 0.2), Vec2::new(0.7, 0.45)] {
+                let at = Lookup::point([uv, uv]);
+                assert_eq!(stepped.sample(&r, &at, true), whole.sample(&r, &at, true));
+                assert!(stepped.sample(&r, &at, true).is_some());
+            }
+        }
+        // Cancelled before its second step.
+        steps.set(0);
+        let refusing = |part: &mut (dyn FnMut() + Send)| -> Result<(), &str> {
+            steps.set(steps.get() + 1);
+            if steps.get() > 1 {
+                return Err("cancelled");
+            }
+            part();
+            Ok(())
+        };
+        assert_eq!(
+            TextureSet::in_steps(&scene, &refusing).map(|_| ()),
+            Err("cancelled")
+        );
+        // Image 0 does not decode: the first step says so and nothing more runs.
+        steps.set(0);
+        match TextureSet::in_steps(&scene_of_images(5, Some(0)), &counted) {
+            Ok(Err(TextureError::Decode { image: 0, .. })) => {}
+            other => panic!("{:?}", other.map(|r| r.map(|_| ()))),
+        }
+        assert_eq!(steps.get(), 1);
     }
 
     #[test]

@@ -448,7 +448,7 @@ pub fn render_radiance(
     let report = engine.render(
         &request,
         &[time],
-        &|_| Ok(copy()),
+        &|_, _| Ok(copy()),
         &engine.detached(),
         &mut |_, b| {
             bytes = Some(b);
