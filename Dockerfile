@@ -21,7 +21,9 @@ RUN apt-get update \
  && mkdir -p /data \
  && chown rayd:rayd /data
 COPY --from=build /src/target/release/rayd /usr/local/bin/rayd
-COPY scenes /usr/share/rayd/scenes
+# The store for every command run in the container (`docker exec … rayd backup --out
+# /data/backup-1` copies the live store).
+ENV RAYD_DATA_DIR=/data
 USER rayd
 WORKDIR /data
 VOLUME /data
@@ -29,7 +31,10 @@ EXPOSE 8080
 # SIGTERM starts the graceful shutdown (--grace seconds, default 5); give `docker stop`
 # more than that (its default of 10 s does).
 STOPSIGNAL SIGTERM
-HEALTHCHECK --interval=10s --timeout=3s --start-period=10s --retries=3 \
+# Docker's timeout above `rayd healthcheck`'s own 3 s, so that its message is the one logged.
+HEALTHCHECK --interval=10s --timeout=5s --start-period=10s --retries=3 \
   CMD ["rayd", "healthcheck"]
 ENTRYPOINT ["rayd"]
+# Flags win over RAYD_* variables: to change one, give the command whole, for example
+# `docker run … rayd serve --addr 0.0.0.0:8080 --data-dir /data --threads 8`.
 CMD ["serve", "--addr", "0.0.0.0:8080", "--data-dir", "/data"]

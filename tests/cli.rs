@@ -1004,7 +1004,7 @@ fn healthcheck_wants_a_whole_answer_and_a_sendable_url() {
     assert!(ok, "{err}");
     assert_eq!(j["status"], 200);
     for needle in [
-        "the answer stopped",
+        "the answer did not end within 2 s",
         "closed inside the answer's head",
         "the body ends after 2 of its 10 bytes",
     ] {

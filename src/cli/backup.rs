@@ -7,7 +7,7 @@ use super::CliError;
 #[derive(clap::Args, Debug)]
 pub(super) struct BackupArgs {
     /// The data directory of the store to copy (the one `rayd serve --data-dir` uses).
-    #[arg(long, default_value = "rayd-data")]
+    #[arg(long, env = "RAYD_DATA_DIR", default_value = "rayd-data")]
     data_dir: PathBuf,
     /// Where to write the copy: a new or empty directory, which then opens as a store.
     #[arg(long)]

@@ -202,7 +202,8 @@ fn load_options(time: Option<f64>) -> Result<crate::formats::LoadOptions, CliErr
 /// How a command picks its camera.
 #[derive(clap::Args, Debug, Clone)]
 struct CameraArgs {
-    /// Use the scene's camera with this index (default: a view framing the scene's bounds).
+    /// Use the scene's camera with this index (default: a view framing the scene's bounds;
+    /// `bench`: the scene's camera 0 where a node places it, else that view).
     #[arg(long, conflicts_with_all = ["eye", "target"])]
     camera: Option<usize>,
     /// Eye position x,y,z of a look-at camera (with --target).

@@ -1,7 +1,7 @@
 //! `rayd serve` (the HTTP service) and `rayd healthcheck` (a probe for container health
 //! checks in an image without curl).
 
-use std::io::{Read, Write};
+use std::io::{ErrorKind, Read, Write};
 use std::net::{TcpStream, ToSocketAddrs};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -383,6 +383,18 @@ pub(super) fn healthcheck(a: HealthcheckArgs) -> Result<serde_json::Value, CliEr
             Ok(n) => {
                 answer.extend_from_slice(&buf[..n]);
                 Ok(true)
+            }
+            // A read past the deadline fails as WouldBlock (Unix) or TimedOut (Windows).
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                Err(fail(format!(
+                    "{} within {} s",
+                    if answer.is_empty() {
+                        "no answer"
+                    } else {
+                        "the answer did not end"
+                    },
+                    timeout.as_secs_f64()
+                )))
             }
             Err(e) if answer.is_empty() => Err(fail(format!("no answer: {e}"))),
             Err(e) => Err(fail(format!("the answer stopped: {e}"))),
