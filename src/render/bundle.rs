@@ -12,7 +12,9 @@
 use glam::{Vec2, Vec4};
 
 use super::mipmap::{across_levels, Filtering, Pyramid};
-use super::texture::{decode_tables, filter_level, Bilinear, Blend, SLOTS, SLOT_IS_COLOUR};
+use super::texture::{
+    decode_tables, filter_level, floor, wrap_index, Bilinear, Blend, SLOTS, SLOT_IS_COLOUR,
+};
 use crate::scene::Filter;
 
 /// Fewest textures a bundle takes: its records hold four, so with three at most a quarter
@@ -27,6 +29,9 @@ struct Level {
     texels: Vec<[[u8; 4]; SLOTS]>,
 }
 
+/// Side, in texels, of the blocks of level 0 that [`Bundle::emission_black_at`] knows black.
+const BLOCK: usize = 16;
+
 /// Up to four textures of equal size, levels and sampler, interleaved.
 #[derive(Debug)]
 pub struct Bundle {
@@ -35,6 +40,9 @@ pub struct Bundle {
     filtering: Filtering,
     tex_coord: u32,
     present: [bool; SLOTS],
+    /// Per [`BLOCK`] × [`BLOCK`] block of level 0, row by row, whether any emissive texel
+    /// (slot 3) in it has a colour other than black; empty without an emissive texture.
+    lit: Vec<bool>,
 }
 
 impl Bundle {
@@ -75,21 +83,65 @@ impl Bundle {
                 texels,
             });
         }
+        let lit = if present[3] {
+            lit_blocks(&levels[0])
+        } else {
+            Vec::new()
+        };
         Some(Bundle {
             levels,
             log2_texels_per_unit: first.log2_texels_per_unit(),
             filtering,
             tex_coord,
             present,
+            lit,
         })
     }
 
-    /// Bytes of texels held, every level.
+    /// Whether a point lookup (level 0) of the emissive texture at `uv` reads black
+    /// texels only, so that its colour is exactly black without reading them. Emission
+    /// is read at level 0 by every light sample and every hit after a scattering
+    /// (`Surfaces::finish`), and DamagedHelmet's emissive texture, 64 MiB of records at
+    /// level 0 with the other three, is black but for its lamps: a block table of a few
+    /// kilobytes answers most of those reads from cache. `false` where it cannot tell.
+    pub fn emission_black_at(&self, uv: Vec2) -> bool {
+        if self.lit.is_empty() {
+            return false;
+        }
+        let l = &self.levels[0];
+        let (w, h) = (i64::from(l.width), i64::from(l.height));
+        let x = uv.x * w as f32 - 0.5;
+        let y = uv.y * h as f32 - 0.5;
+        if !(x.is_finite() && y.is_finite()) {
+            return false;
+        }
+        // The taps level 0 reads (`Bundle::level` with the magnification filter).
+        let (xs, ys) = match self.filtering.mag {
+            Filter::Nearest => {
+                let wrap = self.filtering.wrap;
+                let i = wrap_index(floor(x + 0.5) as i64, w, wrap[0]);
+                let j = wrap_index(floor(y + 0.5) as i64, h, wrap[1]);
+                ([i, i], [j, j])
+            }
+            Filter::Linear => {
+                let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
+                (b.x, b.y)
+            }
+        };
+        let across = (l.width as usize).div_ceil(BLOCK);
+        ys.iter().all(|&j| {
+            xs.iter()
+                .all(|&i| !self.lit[j as usize / BLOCK * across + i as usize / BLOCK])
+        })
+    }
+
+    /// Bytes of texels held, every level (and the emissive block table).
     pub fn bytes(&self) -> usize {
         self.levels
             .iter()
             .map(|l| std::mem::size_of_val(&l.texels[..]))
-            .sum()
+            .sum::<usize>()
+            + self.lit.len()
     }
 
     /// The coordinate set its textures read.
@@ -197,6 +249,21 @@ impl Bundle {
     }
 }
 
+/// [`Bundle::lit`] of level `l`.
+fn lit_blocks(l: &Level) -> Vec<bool> {
+    let (w, h) = (l.width as usize, l.height as usize);
+    let across = w.div_ceil(BLOCK);
+    let mut lit = vec![false; across * h.div_ceil(BLOCK)];
+    for (j, row) in l.texels.chunks_exact(w).enumerate() {
+        for (i, t) in row.iter().enumerate() {
+            if t[3][..3] != [0, 0, 0] {
+                lit[j / BLOCK * across + i / BLOCK] = true;
+            }
+        }
+    }
+    lit
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -217,6 +284,88 @@ mod tests {
             out.write_image_data(&data).unwrap();
         }
         Texels::decode(&png).unwrap()
+    }
+
+    /// An 8-bit image of `w` × `h` texels, texel `i` (row by row) `f(i)`.
+    fn image_with(w: u32, h: u32, f: impl Fn(u32) -> [u8; 4]) -> Texels {
+        let mut png = Vec::new();
+        {
+            let mut e = ::png::Encoder::new(&mut png, w, h);
+            e.set_color(::png::ColorType::Rgba);
+            let mut out = e.write_header().unwrap();
+            let data: Vec<u8> = (0..w * h).flat_map(&f).collect();
+            out.write_image_data(&data).unwrap();
+        }
+        Texels::decode(&png).unwrap()
+    }
+
+    /// Where the block table says a point lookup of the emissive texture is black, the
+    /// lookup itself reads black (every sampler, coordinates outside [0, 1] included); it
+    /// says so over most of a texture black but for two texels, and never at those.
+    #[test]
+    fn emission_known_black_is_black() {
+        let (w, h) = (70, 40);
+        let lit = [(3u32, 5u32), (69, 39)];
+        let emissive = image_with(w, h, |i| {
+            if lit.contains(&(i % w, i / w)) {
+                [200, 0, 0, 255]
+            } else {
+                [0, 0, 0, 255]
+            }
+        });
+        let other = image(w, h, 5);
+        let pyramids = [
+            Pyramid::new(other.clone(), true),
+            Pyramid::new(other.clone(), false),
+            Pyramid::new(other, false),
+            Pyramid::new(emissive, true),
+        ];
+        for sampler in [
+            Sampler::default(),
+            Sampler {
+                mag_filter: Some(Filter::Nearest),
+                wrap_s: Wrap::MirroredRepeat,
+                wrap_t: Wrap::ClampToEdge,
+                ..Sampler::default()
+            },
+        ] {
+            let f = Filtering::of(&sampler);
+            let b = Bundle::of(pyramids.each_ref().map(Some), f, 0).unwrap();
+            let mut black = 0;
+            for i in 0..5000 {
+                let uv = Vec2::new(
+                    (i % 97) as f32 * 0.0127 - 0.1,
+                    (i * 31 % 89) as f32 * 0.0131 - 0.1,
+                );
+                let value = b.sample_slot(3, uv, f32::NEG_INFINITY).unwrap();
+                if b.emission_black_at(uv) {
+                    black += 1;
+                    assert_eq!(value.truncate(), glam::Vec3::ZERO, "{sampler:?} at {uv}");
+                }
+            }
+            assert!(black > 4000, "{sampler:?}: black at {black} of 5000");
+            for (x, y) in lit {
+                let uv = Vec2::new((x as f32 + 0.5) / w as f32, (y as f32 + 0.5) / h as f32);
+                assert!(
+                    !b.emission_black_at(uv),
+                    "{sampler:?} at the lit texel {uv}"
+                );
+            }
+        }
+        // Without an emissive texture it cannot tell.
+        let f = Filtering::of(&Sampler::default());
+        let b = Bundle::of(
+            [
+                Some(&pyramids[0]),
+                Some(&pyramids[1]),
+                Some(&pyramids[2]),
+                None,
+            ],
+            f,
+            0,
+        )
+        .unwrap();
+        assert!(!b.emission_black_at(Vec2::new(0.5, 0.5)));
     }
 
     #[test]

@@ -434,6 +434,19 @@ impl Surfaces {
         value.unwrap_or(Vec4::ONE)
     }
 
+    /// The colour of material `m`'s emissive texture (white without one) at texture
+    /// coordinates `uv` of triangle `prim`, at level 0: black without reading a texel where
+    /// its bundle knows the taps black ([`Bundle::emission_black_at`]; the same bits).
+    fn point_emission(&self, prim: usize, m: &Material, uv: [Vec2; 2]) -> Vec3 {
+        let at = Lookup::point(uv);
+        if let Some(b) = self.bundle(prim) {
+            if b.emission_black_at(at.set(b.tex_coord()).0) {
+                return Vec3::ZERO;
+            }
+        }
+        self.texel(prim, m, 3, &at).truncate()
+    }
+
     /// Whether any material is not opaque; when none is, every hit stops its ray and the
     /// renderer skips the presence tests.
     pub fn has_alpha(&self) -> bool {
@@ -525,10 +538,7 @@ impl Surfaces {
             return Vec3::ZERO;
         }
         let e = if m.emissive_texture.is_some() {
-            factor
-                * self
-                    .point_texel(prim, m, 3, &self.interp(prim, b))
-                    .truncate()
+            factor * self.point_emission(prim, m, self.uvs(&self.interp(prim, b)))
         } else {
             factor
         };
@@ -602,7 +612,7 @@ impl Surfaces {
         if let (Some(uv), Some(b)) = (&l.uv, self.bundle(l.prim)) {
             let (uv, log2_width) = uv.set(b.tex_coord());
             b.prefetch(uv, log2_width);
-            if l.emission_at_point {
+            if l.emission_at_point && !b.emission_black_at(uv) {
                 b.prefetch(uv, f32::NEG_INFINITY);
             }
         }
@@ -644,7 +654,7 @@ impl Surfaces {
         };
         let mut texels = texels;
         if emission_at_point {
-            texels[3] = Some(self.texel(prim, m, 3, &Lookup::point(uv.uv)));
+            texels[3] = Some(self.point_emission(prim, m, uv.uv).extend(1.0));
         }
         self.shaded(m, tri, &at, face, ng, texels, specular)
     }

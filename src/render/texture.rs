@@ -514,7 +514,7 @@ fn to_linear(c: f32) -> f32 {
 
 /// A texel index `i` of an axis of `n` texels, wrapped.
 #[inline]
-fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+pub(crate) fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     // Nearly every tap lies inside: no division for it.
     if (0..n).contains(&i) {
         return i;
