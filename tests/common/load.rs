@@ -282,6 +282,18 @@ pub fn request(
     {
         body = dechunk(&body).ok_or_else(|| bad("a broken chunked body"))?;
     }
+    // A body shorter than its head announced was cut off (a server killed after sending
+    // the head): an error, as any HTTP client reports it, never a short answer.
+    let announced = headers
+        .iter()
+        .find(|(k, _)| k == "content-length")
+        .and_then(|(_, v)| v.parse::<usize>().ok());
+    if let Some(n) = announced.filter(|&n| n != body.len()) {
+        return Err(bad(&format!(
+            "the body ended after {} of its {n} bytes",
+            body.len()
+        )));
+    }
     Ok(Answer {
         status,
         headers,
