@@ -11,7 +11,7 @@ use crate::accel::{AccelKind, BuildQuality, Precision};
 use crate::render::camera::{CameraChoice, ViewCamera};
 use crate::render::image::{encode, ImageFormat};
 use crate::render::surface::Surfaces;
-use crate::render::texture::{DecodedOnce, Steps};
+use crate::render::texture::{at_once, DecodedOnce, Steps};
 use crate::render::{AovSet, Integrator, RenderOptions, Waves};
 use crate::scene::Camera;
 
@@ -200,11 +200,12 @@ impl FrameInput {
         surfaces: bool,
     ) -> Result<FrameInput, JobError> {
         let textures = DecodedOnce::default();
-        let at_once = |part: &mut (dyn FnMut() + Send)| -> Result<(), JobError> {
-            part();
-            Ok(())
-        };
-        FrameInput::of_scene_with(scene, key, surfaces.then_some(&textures), &at_once)
+        FrameInput::of_scene_with(
+            scene,
+            key,
+            surfaces.then_some(&textures),
+            &at_once::<JobError>,
+        )
     }
 
     /// [`FrameInput::of_scene`] for one frame of a sequence, its work done in `step`'s

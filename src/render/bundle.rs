@@ -12,9 +12,7 @@
 use glam::{Vec2, Vec4};
 
 use super::mipmap::{across_levels, Filtering, Pyramid};
-use super::texture::{
-    decode_tables, filter_level, floor, wrap_index, Bilinear, Blend, SLOTS, SLOT_IS_COLOUR,
-};
+use super::texture::{decode_tables, filter_level, Bilinear, Blend, SLOTS, SLOT_IS_COLOUR};
 use crate::scene::Filter;
 
 /// Fewest textures a bundle takes: its records hold four, so with three at most a quarter
@@ -31,6 +29,19 @@ struct Level {
 
 /// Side, in texels, of the blocks of level 0 that [`Bundle::emission_black_at`] knows black.
 const BLOCK: usize = 16;
+
+impl Level {
+    /// The bilinear taps at `uv` (wrapped by `wrap`); `None` where `uv` puts them
+    /// nowhere (not finite), which [`filter_level`] reads as texel (0, 0). One computation
+    /// for the lookup, its prefetch and the emissive block table.
+    #[inline(always)]
+    fn bilinear(&self, uv: Vec2, wrap: [crate::scene::Wrap; 2]) -> Option<Bilinear> {
+        let (w, h) = (i64::from(self.width), i64::from(self.height));
+        let x = uv.x * w as f32 - 0.5;
+        let y = uv.y * h as f32 - 0.5;
+        (x.is_finite() && y.is_finite()).then(|| Bilinear::at(x, y, (w, h), wrap))
+    }
+}
 
 /// Up to four textures of equal size, levels and sampler, interleaved.
 #[derive(Debug)]
@@ -108,26 +119,13 @@ impl Bundle {
         if self.lit.is_empty() {
             return false;
         }
+        // The taps level 0 reads (`Bundle::level` with the magnification filter): the
+        // bilinear four, a superset of the nearest one.
         let l = &self.levels[0];
-        let (w, h) = (i64::from(l.width), i64::from(l.height));
-        let x = uv.x * w as f32 - 0.5;
-        let y = uv.y * h as f32 - 0.5;
-        if !(x.is_finite() && y.is_finite()) {
+        let Some(b) = l.bilinear(uv, self.filtering.wrap) else {
             return false;
-        }
-        // The taps level 0 reads (`Bundle::level` with the magnification filter).
-        let (xs, ys) = match self.filtering.mag {
-            Filter::Nearest => {
-                let wrap = self.filtering.wrap;
-                let i = wrap_index(floor(x + 0.5) as i64, w, wrap[0]);
-                let j = wrap_index(floor(y + 0.5) as i64, h, wrap[1]);
-                ([i, i], [j, j])
-            }
-            Filter::Linear => {
-                let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
-                (b.x, b.y)
-            }
         };
+        let (xs, ys) = (b.x, b.y);
         let across = (l.width as usize).div_ceil(BLOCK);
         ys.iter().all(|&j| {
             xs.iter()
@@ -178,17 +176,13 @@ impl Bundle {
         let lod = log2_width + self.log2_texels_per_unit;
         across_levels(lod, &self.filtering, self.levels.len() - 1, |k, _| {
             let l = &self.levels[k];
-            let (w, h) = (i64::from(l.width), i64::from(l.height));
-            let x = uv.x * w as f32 - 0.5;
-            let y = uv.y * h as f32 - 0.5;
-            if !(x.is_finite() && y.is_finite()) {
+            let Some(b) = l.bilinear(uv, self.filtering.wrap) else {
                 return;
-            }
-            let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
+            };
             let base = l.texels.as_ptr();
             for row in b.y {
                 for col in b.x {
-                    let i = row as usize * w as usize + col as usize;
+                    let i = row as usize * l.width as usize + col as usize;
                     crate::simd::prefetch(base.wrapping_add(i).cast(), 1);
                 }
             }
@@ -214,10 +208,11 @@ impl Bundle {
         let l = &self.levels[k];
         let tables = decode_tables();
         let slot = |p: &[[u8; 4]; SLOTS], s: usize| tables.decode(p[s], SLOT_IS_COLOUR[s]);
-        let (w, h) = (i64::from(l.width), i64::from(l.height));
-        let x = uv.x * w as f32 - 0.5;
-        let y = uv.y * h as f32 - 0.5;
-        if filter == Filter::Nearest || !(x.is_finite() && y.is_finite()) {
+        let bilinear = match filter {
+            Filter::Linear => l.bilinear(uv, self.filtering.wrap),
+            Filter::Nearest => None,
+        };
+        let Some(b) = bilinear else {
             return filter_level(
                 uv,
                 (l.width, l.height),
@@ -228,9 +223,9 @@ impl Bundle {
                     std::array::from_fn(|s| if mask[s] { slot(p, s) } else { Vec4::ZERO })
                 },
             );
-        }
-        let b = Bilinear::at(x, y, (w, h), self.filtering.wrap);
-        let (row0, row1) = (b.y[0] as usize * w as usize, b.y[1] as usize * w as usize);
+        };
+        let w = l.width as usize;
+        let (row0, row1) = (b.y[0] as usize * w, b.y[1] as usize * w);
         let (x0, x1) = (b.x[0] as usize, b.x[1] as usize);
         let taps = [
             &l.texels[row0 + x0],

@@ -872,6 +872,17 @@ mod tests {
         normal_mapped_with(rgb, scale, tangents, Vec::new())
     }
 
+    /// The triangle (0,0,0), (1,0,0), (0,1,0) (its normal +Z) and flat shading for it,
+    /// of material 0.
+    fn unit_triangle() -> (Triangle, Shading) {
+        let mut shading = Shading::flat(1);
+        shading.materials = vec![0];
+        let tri = Triangle {
+            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        };
+        (tri, shading)
+    }
+
     /// [`normal_mapped`] with vertex normals.
     fn normal_mapped_with(
         rgb: [f32; 3],
@@ -882,11 +893,7 @@ mod tests {
         use super::super::texture::{Texels, TextureSet};
         use crate::render::mipmap::Filtering;
         use crate::scene::{Filter, Wrap};
-        let tri = Triangle {
-            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-        };
-        let mut shading = Shading::flat(1);
-        shading.materials = vec![0];
+        let (tri, mut shading) = unit_triangle();
         shading.uv0 = vec![
             Vec2::new(0.0, 1.0),
             Vec2::new(1.0, 1.0),
@@ -1010,8 +1017,6 @@ mod tests {
         }
     }
 
-    /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
-    /// `specularTexture`, the colour by the RGB of `specularColorTexture` (sRGB-decoded).
     /// After a scattering, a light sample of a point on an emissive-textured triangle and
     /// a BRDF-sampled ray that hits it read the same emission, the texture's at level 0,
     /// however wide their cones (multiple importance sampling weighs two estimates of one
@@ -1021,11 +1026,7 @@ mod tests {
         use super::super::texture::{Texels, TextureSet};
         use crate::render::mipmap::Filtering;
         use crate::scene::Sampler;
-        let tri = Triangle {
-            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-        };
-        let mut shading = Shading::flat(1);
-        shading.materials = vec![0];
+        let (tri, mut shading) = unit_triangle();
         shading.uv0 = vec![Vec2::ZERO, Vec2::X, Vec2::Y];
         let colour = Vec3::new(1.0, 0.5, 0.25);
         let material = Material {
@@ -1074,16 +1075,14 @@ mod tests {
         assert!((wide - 0.5 * colour).abs().max_element() < 0.05, "{wide}");
     }
 
+    /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
+    /// `specularTexture`, the colour by the RGB of `specularColorTexture` (sRGB-decoded).
     #[test]
     fn specular_textures_scale_the_specular_factors() {
         use super::super::texture::{Texels, TextureSet};
         use crate::render::mipmap::Filtering;
         use crate::scene::{Filter, Specular, Wrap};
-        let tri = Triangle {
-            v: [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
-        };
-        let mut shading = Shading::flat(1);
-        shading.materials = vec![0];
+        let (tri, mut shading) = unit_triangle();
         shading.uv0 = vec![Vec2::ZERO; 3];
         let r = |texture| {
             Some(TextureRef {

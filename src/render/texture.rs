@@ -514,7 +514,7 @@ fn to_linear(c: f32) -> f32 {
 
 /// A texel index `i` of an axis of `n` texels, wrapped.
 #[inline]
-pub(crate) fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
+fn wrap_index(i: i64, n: i64, wrap: Wrap) -> i64 {
     // Nearly every tap lies inside: no division for it.
     if (0..n).contains(&i) {
         return i;
@@ -623,6 +623,13 @@ fn check_declared_size(scene: &Scene, uses: &[[bool; 2]]) -> Result<(), TextureE
 /// or refuses to with `E` (the job was cancelled).
 pub type Steps<'a, E> = dyn Fn(&mut (dyn FnMut() + Send)) -> Result<(), E> + 'a;
 
+/// [`Steps`] that run each part at once, on the caller's thread: work done outside any
+/// job.
+pub fn at_once<E>(part: &mut (dyn FnMut() + Send)) -> Result<(), E> {
+    part();
+    Ok(())
+}
+
 /// Image `image` of `scene` decoded, with its pyramid for each of `uses` (`[data,
 /// colour]`).
 fn pyramids_of(
@@ -658,11 +665,7 @@ impl TextureSet {
     /// `KHR_materials_specular`'s two), each image once,
     /// and builds its pyramid for each use.
     pub fn of(scene: &Scene) -> Result<TextureSet, TextureError> {
-        let at_once = |part: &mut (dyn FnMut() + Send)| -> Result<(), std::convert::Infallible> {
-            part();
-            Ok(())
-        };
-        match TextureSet::in_steps(scene, &at_once) {
+        match TextureSet::in_steps(scene, &at_once::<std::convert::Infallible>) {
             Ok(decoded) => decoded,
             Err(never) => match never {},
         }
@@ -1099,10 +1102,35 @@ mod tests {
         png
     }
 
+    /// A scene of `images`, each the base colour texture of a material of its own.
+    fn scene_of(images: Vec<crate::scene::Image>) -> Scene {
+        use crate::scene::{Material, Texture};
+        Scene {
+            textures: (0..images.len())
+                .map(|image| Texture {
+                    image,
+                    sampler: Default::default(),
+                })
+                .collect(),
+            materials: (0..images.len())
+                .map(|t| Material {
+                    base_color_texture: Some(TextureRef {
+                        texture: t,
+                        tex_coord: 0,
+                        transform: None,
+                    }),
+                    ..Material::default()
+                })
+                .collect(),
+            images,
+            ..Scene::default()
+        }
+    }
+
     /// A scene of `images` 4 × 4 PNG base colour textures, one material each, image
     /// `bad` (if any) not an image at all.
     fn scene_of_images(images: usize, bad: Option<usize>) -> Scene {
-        use crate::scene::{Image, Material, Texture};
+        use crate::scene::Image;
         let png = |k: usize| {
             let mut png = Vec::new();
             {
@@ -1114,8 +1142,8 @@ mod tests {
             }
             png
         };
-        Scene {
-            images: (0..images)
+        scene_of(
+            (0..images)
                 .map(|k| Image {
                     mime_type: "image/png".into(),
                     bytes: if Some(k) == bad {
@@ -1125,24 +1153,7 @@ mod tests {
                     },
                 })
                 .collect(),
-            textures: (0..images)
-                .map(|image| Texture {
-                    image,
-                    sampler: Default::default(),
-                })
-                .collect(),
-            materials: (0..images)
-                .map(|t| Material {
-                    base_color_texture: Some(TextureRef {
-                        texture: t,
-                        tex_coord: 0,
-                        transform: None,
-                    }),
-                    ..Material::default()
-                })
-                .collect(),
-            ..Scene::default()
-        }
+        )
     }
 
     /// Decoding in steps gives the textures of one decode, in as many steps as the pool
@@ -1201,34 +1212,19 @@ mod tests {
 
     #[test]
     fn textures_that_together_declare_too_many_texels_are_refused_before_decoding() {
-        use crate::scene::{Image, Material, Texture};
+        use crate::scene::Image;
         let side = 8192u32;
         let n = (MAX_SCENE_TEXTURE_PIXELS / (u64::from(side) * u64::from(side))) as usize;
         let bytes: std::sync::Arc<[u8]> = declared_png(side).into();
-        let scene = |images: usize| Scene {
-            images: (0..images)
-                .map(|_| Image {
-                    mime_type: "image/png".into(),
-                    bytes: bytes.clone(),
-                })
-                .collect(),
-            textures: (0..images)
-                .map(|image| Texture {
-                    image,
-                    sampler: Default::default(),
-                })
-                .collect(),
-            materials: (0..images)
-                .map(|t| Material {
-                    base_color_texture: Some(TextureRef {
-                        texture: t,
-                        tex_coord: 0,
-                        transform: None,
-                    }),
-                    ..Material::default()
-                })
-                .collect(),
-            ..Scene::default()
+        let scene = |images: usize| {
+            scene_of(
+                (0..images)
+                    .map(|_| Image {
+                        mime_type: "image/png".into(),
+                        bytes: bytes.clone(),
+                    })
+                    .collect(),
+            )
         };
         match TextureSet::of(&scene(n + 1)) {
             Err(e @ TextureError::TooLarge { .. }) => {
