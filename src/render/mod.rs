@@ -1149,6 +1149,13 @@ fn shade_run(
         })
     };
     let n = steps.len();
+    if scattered && !scatter {
+        // A path's last vertex after a scattering only adds what it emits.
+        for i in 0..n {
+            steps[i] = last_vertex(frame, &state[i], &rays[i], &hits[i], sky);
+        }
+        return;
+    }
     let mut ahead: [Option<Located>; SHADE_AHEAD] = [None; SHADE_AHEAD];
     for (i, slot) in ahead.iter_mut().enumerate().take(n) {
         *slot = locate(&state[i], &rays[i], &hits[i]);
@@ -1183,14 +1190,8 @@ fn shade_vertex(
     let dir = Vec3::from(ray.dir);
     let lights = frame.lights;
     let Some(located) = located else {
-        // The sky, weighted against the chance that light sampling found the direction.
-        let w = if p.prev_pdf > 0.0 {
-            power_heuristic(p.prev_pdf, lights.sky_pdf(p.prev_ns, dir))
-        } else {
-            1.0
-        };
         return Step {
-            emitted: thr * sky * w,
+            emitted: sky_seen(frame, p, dir, sky),
             ..Step::default()
         };
     };
@@ -1198,14 +1199,8 @@ fn shade_vertex(
     let width = p.cone.width_at(p.travelled + hit.t);
     let sp = frame.surfaces.finish(tri, &located);
     let pos = Vec3::from(surface_point(tri, hit.u, hit.v));
-    let mut emitted = thr * sp.emission;
-    if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
-        let dist = (pos - p.prev_pos).length();
-        let light_pdf = lights.triangle_pdf(hit.prim, dist, sp.ng.dot(-dir).abs());
-        emitted *= power_heuristic(p.prev_pdf, light_pdf);
-    }
     let mut step = Step {
-        emitted,
+        emitted: emission_seen(frame, p, hit, pos, sp.emission, sp.ng.dot(dir).abs()),
         ..Step::default()
     };
     if !scatter {
@@ -1331,6 +1326,69 @@ fn shade_vertex(
         }
     }
     step
+}
+
+/// What path `p`'s last vertex adds after a scattering, which is all that shading it
+/// gives: its ray's `hit` emission, or the sky `sky` on a miss. The same values
+/// [`shade_vertex`] finds (emission after a scattering is read at level 0), without the
+/// surface point's other textures, normal and BRDF, which no one would read: with two
+/// bounces a third of a path frame's vertices are last ones.
+#[inline(always)]
+fn last_vertex(frame: Frame<'_>, p: &PathState, ray: &Ray, hit: &Hit, sky: Vec3) -> Step {
+    let dir = Vec3::from(ray.dir);
+    let emitted = if hit.is_hit() {
+        let tri = &frame.triangles[hit.prim as usize];
+        let b = [1.0 - hit.u - hit.v, hit.u, hit.v];
+        let emission = frame
+            .surfaces
+            .emission_after_scattering(hit.prim as usize, b);
+        if emission == Vec3::ZERO {
+            Vec3::ZERO
+        } else {
+            let pos = Vec3::from(surface_point(tri, hit.u, hit.v));
+            let face = Vec3::from(tri.normal()).normalize_or_zero();
+            emission_seen(frame, p, hit, pos, emission, face.dot(dir).abs())
+        }
+    } else {
+        sky_seen(frame, p, dir, sky)
+    };
+    Step {
+        emitted,
+        ..Step::default()
+    }
+}
+
+/// What the sky adds to path `p` whose ray of direction `dir` missed: weighted against
+/// the chance that light sampling at its last scattering found the direction.
+#[inline(always)]
+fn sky_seen(frame: Frame<'_>, p: &PathState, dir: Vec3, sky: Vec3) -> Vec3 {
+    let w = if p.prev_pdf > 0.0 {
+        power_heuristic(p.prev_pdf, frame.lights.sky_pdf(p.prev_ns, dir))
+    } else {
+        1.0
+    };
+    p.throughput * sky * w
+}
+
+/// What a hit surface emitting `emission` at `pos` adds to path `p`, its ray meeting the
+/// surface at cosine `cos` to the geometric normal: weighted against the chance that
+/// light sampling at the path's last scattering picked the point.
+#[inline(always)]
+fn emission_seen(
+    frame: Frame<'_>,
+    p: &PathState,
+    hit: &Hit,
+    pos: Vec3,
+    emission: Vec3,
+    cos: f32,
+) -> Vec3 {
+    let mut emitted = p.throughput * emission;
+    if p.prev_pdf > 0.0 && emitted != Vec3::ZERO {
+        let dist = (pos - p.prev_pos).length();
+        let light_pdf = frame.lights.triangle_pdf(hit.prim, dist, cos);
+        emitted *= power_heuristic(p.prev_pdf, light_pdf);
+    }
+    emitted
 }
 
 /// Gives each pixel outside `visible` the sum of `spp` camera rays that miss: the sky for

@@ -532,17 +532,8 @@ impl Surfaces {
     /// cone is wide, and its average lit a floor under a textured emitter 2.7× too dark
     /// beside the emitter's bright texel and 14× too bright away from it).
     pub fn emission_at(&self, prim: usize, b: [f32; 3]) -> Vec3 {
-        let m = self.material(prim);
-        let factor = emissive(m);
-        if factor == Vec3::ZERO {
-            return Vec3::ZERO;
-        }
-        let e = if m.emissive_texture.is_some() {
-            factor * self.point_emission(prim, m, self.uvs(&self.interp(prim, b)))
-        } else {
-            factor
-        };
-        if m.alpha_mode == AlphaMode::Opaque {
+        let e = self.emission_after_scattering(prim, b);
+        if e == Vec3::ZERO || self.material(prim).alpha_mode == AlphaMode::Opaque {
             return e;
         }
         let hit = Hit {
@@ -552,6 +543,23 @@ impl Surfaces {
             prim: prim as u32,
         };
         e * self.presence(&hit).coverage()
+    }
+
+    /// The emission of triangle `prim` at barycentric weights `b` as a ray that scattered
+    /// before meeting it sees it: the emissive texture read at level 0, as
+    /// [`Surfaces::finish`] reads it for a [`Surfaces::locate`]d hit after a scattering,
+    /// but without the other textures.
+    pub fn emission_after_scattering(&self, prim: usize, b: [f32; 3]) -> Vec3 {
+        let m = self.material(prim);
+        let factor = emissive(m);
+        if factor == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        if m.emissive_texture.is_some() {
+            factor * self.point_emission(prim, m, self.uvs(&self.interp(prim, b)))
+        } else {
+            factor
+        }
     }
 
     /// The surface at `hit` of triangle `tri` for a camera ray of direction `dir` whose
@@ -1063,6 +1071,8 @@ mod tests {
                 let l = s.locate(&tri, &hit, Vec3::NEG_Z, width, true);
                 assert_eq!(s.finish(&tri, &l).emission, by_light, "({u}, {v}), {width}");
             }
+            // A path's last vertex reads it without the rest of the surface.
+            assert_eq!(s.emission_after_scattering(0, b), by_light);
         }
         // A camera ray's cone wider than the triangle reads the checker's mean.
         let hit = Hit {
@@ -1073,6 +1083,53 @@ mod tests {
         };
         let wide = s.at(&tri, &hit, Vec3::NEG_Z, 5.0).emission;
         assert!((wide - 0.5 * colour).abs().max_element() < 0.05, "{wide}");
+    }
+
+    /// A path's last vertex ([`Surfaces::emission_after_scattering`]) sees what the whole
+    /// surface point after a scattering shows, for emitters without textures, half
+    /// transparent ones (a hit is on the surface: no coverage, which light samples weigh
+    /// by) and surfaces that emit nothing.
+    #[test]
+    fn last_vertex_emission_is_the_surface_points() {
+        let (tri, shading) = unit_triangle();
+        let glow = [0.5, 2.0, 0.25];
+        let materials = [
+            Material {
+                emissive_factor: glow,
+                ..Material::default()
+            },
+            Material {
+                emissive_factor: glow,
+                emissive_strength: 3.0,
+                base_color_factor: [1.0, 1.0, 1.0, 0.5],
+                alpha_mode: AlphaMode::Blend,
+                ..Material::default()
+            },
+            Material::default(),
+        ];
+        for (k, material) in materials.into_iter().enumerate() {
+            let textures = super::super::texture::TextureSet::from_texels(Vec::new());
+            let s = Surfaces::from_parts(shading.clone(), vec![material], textures, Vec::new());
+            let hit = Hit {
+                t: 1.0,
+                u: 0.25,
+                v: 0.5,
+                prim: 0,
+            };
+            let b = [0.25, 0.25, 0.5];
+            let l = s.locate(&tri, &hit, Vec3::NEG_Z, 0.1, true);
+            let whole = s.finish(&tri, &l).emission;
+            assert_eq!(s.emission_after_scattering(0, b), whole, "material {k}");
+            let expected = match k {
+                0 => Vec3::from(glow),
+                1 => Vec3::from(glow) * 3.0,
+                _ => Vec3::ZERO,
+            };
+            assert_eq!(whole, expected, "material {k}");
+            // A light sample of the half-transparent one sees half of it.
+            let coverage = if k == 1 { 0.5 } else { 1.0 };
+            assert_eq!(s.emission_at(0, b), expected * coverage, "material {k}");
+        }
     }
 
     /// `KHR_materials_specular`'s textures scale its factors: the strength by the alpha of
