@@ -4,7 +4,7 @@
 // uploads scenes (file input and drag and drop), waits for their thumbnails, renders one
 // and waits for its image, follows a long render's live progress and cancels and deletes
 // it, and fails on any console error, page error, dialog or CSP violation. A scene named
-// like markup must show as text.
+// like markup must show as text; another client then deletes it, and its card must go.
 //
 //   node tests/browser/status-page.test.mjs [--screenshot docs/status-page.png]
 //
@@ -209,7 +209,6 @@ async function openServer(browser, dir) {
     check(await page.locator("#token-form").isHidden(), "no token asked for");
     // The three demo scenes have thumbnails too.
     await page.waitForFunction(() => document.querySelectorAll(".scene").length >= 3);
-    await uploadByInput(page, "OrientationTest.glb");
     await uploadByDrop(page, "Triangle.glb", EVIL);
     await page.waitForFunction((evil) => [...document.querySelectorAll(".scene .name")]
       .some((n) => n.textContent === evil), EVIL);
@@ -218,7 +217,16 @@ async function openServer(browser, dir) {
       return { children: n.children.length, injected: document.querySelectorAll('img[src="x"]').length };
     }, EVIL);
     check(evil.children === 0 && evil.injected === 0, `a markup name shows as text: ${JSON.stringify(evil)}`);
-    await waitThumbnails(page, 5);
+    // Another client deletes the markup-named scene: its card goes from the page.
+    const evilId = await sceneId(page, EVIL);
+    check((await fetch(`${server.url}/v1/scenes/${evilId}`, { method: "DELETE" })).status === 204,
+      "the markup-named scene is deleted");
+    await page.waitForFunction((id) => !document.querySelector(`.scene[data-id="${id}"]`), evilId,
+      { timeout: 30_000 });
+    await uploadByInput(page, "OrientationTest.glb");
+    check((await page.locator("#drop").textContent()).includes("Uploaded OrientationTest.glb"),
+      "the page says which file it uploaded");
+    await waitThumbnails(page, 4);
     const fox = await sceneId(page, "Fox.glb");
     check(fox && (await page.locator(`.scene[data-id="${fox}"] .id`).textContent()) === fox.slice(0, 12),
       "a scene shows the first 12 characters of its id");
