@@ -1268,12 +1268,13 @@ fn shade_vertex(
         if let Some((wi_world, distance, li, light_pdf)) = sample {
             if wi_world.dot(sp.ng) > 0.0 {
                 let wi = local(wi_world);
+                let (f, pdf) = sp.bsdf.eval_pdf(wo, wi);
                 let weight = if light_pdf.is_infinite() {
                     1.0
                 } else {
-                    power_heuristic(light_pdf, sp.bsdf.pdf(wo, wi))
+                    power_heuristic(light_pdf, pdf)
                 };
-                let gain = thr * sp.bsdf.eval(wo, wi) * wi.z.max(0.0) * li * weight;
+                let gain = thr * f * wi.z.max(0.0) * li * weight;
                 if gain.max_element() > 0.0 && gain.is_finite() {
                     step.shadow = Some((
                         Ray {
