@@ -217,6 +217,8 @@ async function openServer(browser, dir) {
       return { children: n.children.length, injected: document.querySelectorAll('img[src="x"]').length };
     }, EVIL);
     check(evil.children === 0 && evil.injected === 0, `a markup name shows as text: ${JSON.stringify(evil)}`);
+    // Its thumbnail first (a thumbnail request in flight would fail on the deleted scene).
+    await waitThumbnails(page, 4);
     // Another client deletes the markup-named scene: its card goes from the page.
     const evilId = await sceneId(page, EVIL);
     check((await fetch(`${server.url}/v1/scenes/${evilId}`, { method: "DELETE" })).status === 204,
@@ -224,8 +226,8 @@ async function openServer(browser, dir) {
     await page.waitForFunction((id) => !document.querySelector(`.scene[data-id="${id}"]`), evilId,
       { timeout: 30_000 });
     await uploadByInput(page, "OrientationTest.glb");
-    check((await page.locator("#drop").textContent()).includes("Uploaded OrientationTest.glb"),
-      "the page says which file it uploaded");
+    await page.waitForFunction(() =>
+      document.getElementById("upload-status").textContent === "Uploaded OrientationTest.glb.");
     await waitThumbnails(page, 4);
     const fox = await sceneId(page, "Fox.glb");
     check(fox && (await page.locator(`.scene[data-id="${fox}"] .id`).textContent()) === fox.slice(0, 12),
