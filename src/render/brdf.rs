@@ -128,8 +128,15 @@ impl Bsdf {
             return Vec3::ZERO;
         }
         let h = (wo + wi).normalize_or_zero();
-        let vh = wo.dot(h).max(0.0);
-        let spec = self.d(h.z) * self.vis(nl, nv);
+        self.value(nv, nl, wo.dot(h).max(0.0), self.d(h.z))
+    }
+
+    /// The BRDF's value for cosines `nv`, `nl` (both positive) and `vh`, and the
+    /// microfacet density `d` of their half vector: [`Bsdf::eval`]'s and
+    /// [`Bsdf::eval_pdf`]'s one formula.
+    #[inline(always)]
+    fn value(&self, nv: f32, nl: f32, vh: f32, d: f32) -> Vec3 {
+        let spec = d * self.vis(nl, nv);
         let diffuse = self.base / PI;
         let fd = schlick(self.f0_dielectric, vh);
         let dielectric =
@@ -160,14 +167,7 @@ impl Bsdf {
         let h = (wo + wi).normalize_or_zero();
         let cos_vh = wo.dot(h);
         let d = self.d(h.z);
-        let vh = cos_vh.max(0.0);
-        let spec = d * self.vis(nl, nv);
-        let diffuse = self.base / PI;
-        let fd = schlick(self.f0_dielectric, vh);
-        let dielectric =
-            diffuse * (1.0 - self.specular * max3(fd)) + Vec3::splat(spec) * self.specular * fd;
-        let metal = schlick(self.base, vh) * spec;
-        let f = dielectric * (1.0 - self.metallic) + metal * self.metallic;
+        let f = self.value(nv, nl, cos_vh.max(0.0), d);
         let ps = self.p_specular;
         // As `pdf_specular` tests it: a NaN cosine goes on to a NaN density.
         let spec_pdf = if ps > 0.0 && (cos_vh > 0.0 || cos_vh.is_nan()) {
