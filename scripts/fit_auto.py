@@ -13,6 +13,15 @@ scene held out in turn.
     scripts/fit_auto.py r1_dragon.txt r1_brainstem.txt r2_dragon.txt ...
     git show 7eb0892:src/accel/auto.rs > old.rs; scripts/fit_auto.py --model old.rs --score-only r*.txt
 
+Static batches (one trace of rays already in memory, with a build of the quality asked
+for) are a second kind of situation: `--static static.csv` adds the rows that
+`rayd bench SCENE --accel auto,mbvh8,dacrt-sampled --sets primary,ao,diffuse2 --threads
+1,2 --runs 3 --width W --height H --format json` reports (BENCHMARKS.md §39; `--save-static`
+turns such reports into those rows), scores the model's picks on them beside the moving
+frames, and `--floors` scores each `shape_floor` in turn over both kinds:
+
+    scripts/fit_auto.py --static docs/experiments/auto-fit/static.csv --floors docs/experiments/auto-fit/r*.txt
+
 Needs numpy: the grid has about a million points.
 """
 import argparse
@@ -72,7 +81,8 @@ def current(path=MODEL_RS):
     src = open(path).read()
     block = src[src.index("const MODEL: Model"):]
     block = block[:block.index("};")]
-    absent = {"ray_shape": "0.0, 0.0", "trace": "1.0, 1.0, 1.0"}
+    absent = {"ray_shape": "0.0, 0.0", "trace": "1.0, 1.0, 1.0", "shape_floor": "12.0",
+              "first_hit": "1.0"}
 
     def num(k):
         m = re.search(k + r": \[?([^\]\n]+)\]?,", block)
@@ -80,7 +90,9 @@ def current(path=MODEL_RS):
     return dict(build=num("build")[0], refit=num("refit")[0], bvh_ray=num("bvh_ray")[0],
                 slow=num("refit_slowdown")[0], pre=num("dacrt_pre")[0], top=num("dacrt_top")[0],
                 dacrt_ray=num("dacrt_ray")[0], s_b=num("speedup2")[0], s_t=num("speedup2")[1],
-                s_d=num("speedup2")[2], e_b=num("ray_shape")[0], e_d=num("ray_shape")[1])
+                s_d=num("speedup2")[2], e_b=num("ray_shape")[0], e_d=num("ray_shape")[1],
+                lo=num("shape_floor")[0], builds=num("build"), traces=num("trace"),
+                first_hit=num("first_hit")[0])
 
 
 def predict(p, tris, threads, rays):
@@ -88,7 +100,7 @@ def predict(p, tris, threads, rays):
     frame standing alone, one batch). Works on numbers and on broadcasting numpy arrays."""
     sp = lambda s2: threads ** np.log2(s2)
     lg = np.maximum(np.log2(tris), 1.0)
-    shape = lambda e: lg * (np.clip(lg, 12.0, 20.0) / 16.0) ** e
+    shape = lambda e: lg * (np.clip(lg, p["lo"], 20.0) / 16.0) ** e
     bvh_trace = rays * p["bvh_ray"] * shape(p["e_b"]) / sp(p["s_t"])
     return {
         ("mbvh8", "rebuild"): p["build"] * tris / sp(p["s_b"]) + bvh_trace,
@@ -190,19 +202,111 @@ def show(p, s):
     return f"{int(ok)} of {n} right, wrong picks {float(mean):.3f}× (worst {float(worst):.2f}×); errors {err}"
 
 
+QUALITIES = ["fast", "sah", "sbvh"]
+
+
+def parse_static(path):
+    """{(run, scene, set, threads, rays): {"mbvh8": ms, "dacrt-sampled": ms, ...}} from a CSV
+    of static bench rows (build and trace of one batch: a BVH's build is paid by the batch,
+    DACRT's precompute likewise)."""
+    import csv
+    out = {}
+    for row in csv.DictReader(open(path)):
+        key = (row["run"], row["scene"], row["set"], int(row["threads"]), int(row["rays"]))
+        d = out.setdefault(key, {"tris": int(row["traced_triangles"]), "quality": row["build"],
+                                 "first_hit": row["set"] == "ao"})
+        d[row["accel"]] = float(row["build_ms"]) + float(row["trace_ms"])
+    return {k: v for k, v in out.items() if "mbvh8" in v and "dacrt-sampled" in v}
+
+
+def save_static(reports, path):
+    """Writes the rows of `rayd bench --format json` reports (each named RUN-anything.json;
+    RUN becomes the row's run) as the CSV that `parse_static` reads."""
+    import csv
+    import json
+    w = csv.writer(open(path, "w"))
+    w.writerow(["run", "scene", "traced_triangles", "build", "set", "threads", "rays", "accel",
+                "build_ms", "trace_ms"])
+    for f in sorted(reports):
+        d = json.load(open(f))
+        run = os.path.basename(f).split("-")[0]
+        for sc in d["scenes"]:
+            b = {(x["accel"], x["threads"]): x["seconds"] for x in sc["builds"]}
+            for x in sc["results"]:
+                w.writerow([run, os.path.basename(sc["scene"]), sc["traced_triangles"], d["build"],
+                            x["set"], x["threads"], x["rays"], x["accel"],
+                            "%.6f" % (b[(x["accel"], x["threads"])] * 1e3),
+                            "%.6f" % (x["seconds"] * 1e3)])
+
+
+def score_static(p, sits):
+    """(right picks, situations, mean cost of every pick, worst) of `auto`'s model on static
+    batches: a new structure of the batch's quality against DACRT (`predict` in
+    src/accel/auto.rs with `Geometry::New`, one frame, one batch)."""
+    v = list(sits.values())
+    tris = np.array([x["tris"] for x in v], dtype=float)
+    threads = np.array([k[3] for k in sits], dtype=float)
+    rays = np.array([k[4] for k in sits], dtype=float)
+    q = np.array([QUALITIES.index(x["quality"]) for x in v])
+    fh = np.array([x["first_hit"] for x in v])
+    bvh_ms = np.array([x["mbvh8"] for x in v])
+    dacrt_ms = np.array([x["dacrt-sampled"] for x in v])
+    sp = lambda s2: threads ** np.log2(s2)
+    lg = np.maximum(np.log2(tris), 1.0)
+    shape = lambda e: lg * (np.clip(lg, p["lo"], 20.0) / 16.0) ** e
+    bvh = (np.array(p["builds"])[q] * tris / sp(p["s_b"])
+           + rays * p["bvh_ray"] * np.array(p["traces"])[q] * shape(p["e_b"])
+           * np.where(fh, p["first_hit"], 1.0) / sp(p["s_t"]))
+    dacrt = (p["pre"] * tris + p["top"] * tris + rays * p["dacrt_ray"] * shape(p["e_d"])) / sp(p["s_d"])
+    got = np.where(dacrt < bvh, dacrt_ms, bvh_ms)
+    cost = got / np.minimum(bvh_ms, dacrt_ms)
+    return int((cost <= 1.0).sum()), len(cost), float(cost.mean()), float(cost.max())
+
+
+def floors(base, every, static):
+    """Each `shape_floor` scored over the moving frames and the static batches."""
+    for lo in [12.0, 13.0, 14.0, 14.5, 15.0, 15.5, 16.0]:
+        p = dict(base, lo=lo)
+        ok, n, mean, _ = score(p, every)
+        line = f"shape_floor {lo}: frames {int(ok)} of {n}, wrong picks {float(mean):.3f}×"
+        if static:
+            sok, sn, smean, sworst = score_static(p, static)
+            line += f"; static {sok} of {sn}, mean pick {smean:.3f}× the best (worst {sworst:.2f}×)"
+        print(line)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("tables", nargs="+")
+    ap.add_argument("tables", nargs="*")
     ap.add_argument("--model", default=MODEL_RS,
                     help="the auto.rs whose constants are scored (default: this checkout's)")
     ap.add_argument("--score-only", action="store_true", help="score them; no search")
+    ap.add_argument("--static", action="append", default=[],
+                    help="a CSV of static batches (see --save-static) to score as well")
+    ap.add_argument("--save-static", nargs=2, metavar=("OUT", "REPORTS"),
+                    help="write the CSV of the bench reports matched by the glob REPORTS, and stop")
+    ap.add_argument("--floors", action="store_true",
+                    help="score each shape_floor over both kinds of situation; no search")
     args = ap.parse_args()
+    if args.save_static:
+        import glob
+        save_static(glob.glob(args.save_static[1]), args.save_static[0])
+        return
     sits = {}
     for f in args.tables:
         sits.update(parse(f))
     every = Situations(sits)
     base = current(args.model)
+    static = {}
+    for f in args.static:
+        static.update(parse_static(f))
     print(f"{args.model}:", show(base, every), base)
+    if static:
+        ok, n, mean, worst = score_static(base, static)
+        print(f"static batches: {ok} of {n} right, mean pick {mean:.3f}× the best (worst {worst:.2f}×)")
+    if args.floors:
+        floors(base, every, static)
+        return
     if args.score_only:
         return
     p = search(base, every)
