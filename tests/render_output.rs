@@ -941,3 +941,113 @@ fn minified_textures_are_filtered_unless_the_sampler_says_not_to() {
     let white = unfiltered.iter().filter(|&&a| a == 1.0).count();
     assert!(white > 100 && white + 100 < unfiltered.len(), "{white}");
 }
+
+/// A render's progress counts the pixels that trace rays, not every pixel of the image:
+/// with the scene in a small rectangle of it, each step reports the share of the frame's
+/// camera rays traced so far (counted by the pixel, a frame read a quarter done after its
+/// rows of sky), and the waves hold about equal numbers of them.
+#[test]
+fn progress_counts_the_pixels_that_trace() {
+    use rayd::accel::Query;
+    use rayd::geometry::{Hit, Ray};
+    use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
+    use std::sync::Mutex;
+
+    struct Counting {
+        inner: Box<dyn Intersector>,
+        rays: AtomicUsize,
+    }
+    impl Intersector for Counting {
+        fn name(&self) -> &'static str {
+            self.inner.name()
+        }
+        fn trace(&self, rays: &[Ray], query: Query, hits: &mut [Hit]) {
+            self.rays.fetch_add(rays.len(), Relaxed);
+            self.inner.trace(rays, query, hits)
+        }
+        fn bytes(&self) -> usize {
+            self.inner.bytes()
+        }
+    }
+    struct Watch<'a> {
+        rays: &'a AtomicUsize,
+        seen: Mutex<Vec<(f64, usize)>>,
+    }
+    impl rayd::render::Waves for Watch<'_> {
+        type Error = std::convert::Infallible;
+        fn run_wave(&self, wave: &mut (dyn FnMut() + Send)) -> Result<(), Self::Error> {
+            wave();
+            Ok(())
+        }
+        fn wave_seconds(&self) -> f64 {
+            1e-6
+        }
+        fn progress(&self, fraction: f64) {
+            let rays = self.rays.load(Relaxed);
+            self.seen.lock().unwrap().push((fraction, rays));
+        }
+    }
+
+    let tris = two_quads();
+    let bounds = rayd::scene::bounds_of(&tris).unwrap();
+    let far = CameraChoice::LookAt {
+        eye: [1.5, 4.0, 14.0],
+        target: [0.0, 0.4, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov: 35.0,
+    };
+    let (w, h, spp) = (320u32, 240u32, 2u32);
+    let options = RenderOptions {
+        width: w,
+        height: h,
+        spp,
+        integrator: Integrator::Primary,
+        ..RenderOptions::default()
+    };
+    let cam = ViewCamera::choose_from(&far, &[], Some(bounds), 320.0 / 240.0).unwrap();
+    let rect = cam.pixel_rect(&bounds, w, h);
+    assert!(
+        rect.len() * 4 < (w * h) as usize && rect.y0 > h / 8,
+        "{rect:?}"
+    );
+    let accel = Counting {
+        inner: build(AccelKind::Mbvh8, &tris, &BuildOptions::default()).unwrap(),
+        rays: AtomicUsize::new(0),
+    };
+    let watch = Watch {
+        rays: &accel.rays,
+        seen: Mutex::new(Vec::new()),
+    };
+    let (_, stats) = render(
+        &tris,
+        &accel,
+        &cam,
+        &options,
+        Some(&bounds),
+        None,
+        None,
+        &watch,
+    )
+    .unwrap();
+    let total = rect.len() * spp as usize;
+    assert_eq!(stats.rays as usize, total);
+    let seen = watch.seen.into_inner().unwrap();
+    assert!(seen.len() > 4, "{} steps", seen.len());
+    let mut last = (0.0, 0);
+    for &(fraction, rays) in &seen {
+        let share = rays as f64 / total as f64;
+        assert!(
+            (fraction - share).abs() < 1e-9,
+            "{fraction} after {rays} of {total} rays"
+        );
+        assert!(fraction >= last.0, "{seen:?}");
+        // After the first (sized before any rate is known), every step but the last
+        // traces the same number of camera rays: the smallest wave's, as these waves are
+        // timed to a microsecond.
+        if rays < total && last.1 > 0 {
+            assert_eq!(rays - last.1, seen[1].1 - seen[0].1, "{seen:?}");
+        }
+        last = (fraction, rays);
+    }
+    assert_eq!(last, (1.0, total));
+}

@@ -509,6 +509,41 @@ impl PixelRect {
     pub fn contains(&self, x: u32, y: u32) -> bool {
         (self.x0..self.x1).contains(&x) && (self.y0..self.y1).contains(&y)
     }
+
+    /// How many of the first `index` pixels of a `width`-wide image, in row order, are
+    /// inside.
+    pub fn inside_before(&self, index: usize, width: usize) -> usize {
+        if width == 0 || self.is_empty() {
+            return 0;
+        }
+        let (y, x) = (index / width, index % width);
+        let (x0, x1, y0, y1) = (
+            self.x0 as usize,
+            self.x1 as usize,
+            self.y0 as usize,
+            self.y1 as usize,
+        );
+        let rows = y.clamp(y0, y1) - y0;
+        let part = if (y0..y1).contains(&y) {
+            x.clamp(x0, x1) - x0
+        } else {
+            0
+        };
+        rows * (x1 - x0) + part
+    }
+
+    /// Where a run of pixels from `start` (row order, a `width`-wide image) that holds
+    /// `count` pixels inside ends (exclusive): the index of the inside pixel after them.
+    /// `None` where fewer than `count + 1` inside pixels lie at or after `start`: the run
+    /// goes on to the image's end.
+    pub fn end_after(&self, start: usize, count: usize, width: usize) -> Option<usize> {
+        let k = self.inside_before(start, width) + count;
+        if k >= self.len() {
+            return None;
+        }
+        let cols = (self.x1 - self.x0) as usize;
+        Some((self.y0 as usize + k / cols) * width + self.x0 as usize + k % cols)
+    }
 }
 
 /// How many rays [`ViewCamera::rays`] makes at once.
@@ -517,6 +552,53 @@ pub const RAYS_AT_ONCE: usize = 8;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `inside_before` and `end_after` against counting pixel by pixel, for rectangles
+    /// inside, at the edges of and empty within a 7 × 5 image.
+    #[test]
+    fn pixels_inside_are_counted_and_runs_end_where_they_should() {
+        let (w, h) = (7u32, 5u32);
+        let rects = [
+            PixelRect::full(w, h),
+            PixelRect::EMPTY,
+            PixelRect {
+                x0: 2,
+                x1: 5,
+                y0: 1,
+                y1: 4,
+            },
+            PixelRect {
+                x0: 0,
+                x1: 1,
+                y0: 4,
+                y1: 5,
+            },
+            PixelRect {
+                x0: 6,
+                x1: 7,
+                y0: 0,
+                y1: 5,
+            },
+        ];
+        let n = (w * h) as usize;
+        for r in rects {
+            let inside = |i: usize| r.contains(i as u32 % w, i as u32 / w);
+            let before = |i: usize| (0..i).filter(|&j| inside(j)).count();
+            for i in 0..=n {
+                assert_eq!(r.inside_before(i, w as usize), before(i), "{r:?} {i}");
+            }
+            for start in 0..n {
+                for count in 1..=r.len() + 1 {
+                    let end = r.end_after(start, count, w as usize);
+                    // The first index past `start` whose run holds `count` inside pixels,
+                    // and holding one more would need the pixel at it.
+                    let want =
+                        (start + 1..n).find(|&e| before(e) - before(start) == count && inside(e));
+                    assert_eq!(end, want, "{r:?} start {start} count {count}");
+                }
+            }
+        }
+    }
 
     /// An `up` whose length overflows or underflows f64 is a direction all the same; an
     /// eye beyond f32's range is refused for what it is, not as "eye equals target".
