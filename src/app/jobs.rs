@@ -901,7 +901,8 @@ fn failure_reason(e: &AppError) -> String {
             StoreError::Io { .. }
             | StoreError::Db(_)
             | StoreError::Migrate(_)
-            | StoreError::Corrupt { .. },
+            | StoreError::Corrupt { .. }
+            | StoreError::MissingBlob { .. },
         )
         | AppError::Internal(_) => {
             tracing::error!("job failed: {e}");

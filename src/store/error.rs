@@ -33,6 +33,15 @@ pub enum StoreError {
         /// What was found instead.
         detail: String,
     },
+    /// A blob that records need is not in the blob directory: a backup found it gone, and
+    /// it was not one a running server's pruning may delete.
+    #[error("blob {blob} is missing from the store's blobs; {needed_by} needs it")]
+    MissingBlob {
+        /// The blob id.
+        blob: String,
+        /// What names it: the scene and version, the job, or the job's frame.
+        needed_by: String,
+    },
     /// The disk (or the configured quota) is full. Nothing was half-written; the store works
     /// again once space is freed.
     #[error("no space left writing {path}: {detail}")]

@@ -352,7 +352,7 @@ async fn backup_into(
         attempt += 1;
         clear(&staging).await?;
         match backup_once(conn, blobs_root, dir, &staging).await {
-            Err(StoreError::NotFound { what: "blob", .. }) if attempt < BACKUP_ATTEMPTS => {}
+            Err(StoreError::MissingBlob { .. }) if attempt < BACKUP_ATTEMPTS => {}
             Err(e) => {
                 let _ = clear(&staging).await;
                 return Err(e);
@@ -517,7 +517,8 @@ fn delete_blob_files(blobs: &BlobDir, ids: Vec<BlobId>, report: &mut GcReport) -
 /// In a backup's copied database, deletes the versions whose blobs were gone when the
 /// copy came to them (`missing`): allowed only when every record naming such a blob is a
 /// version from 2 on, not its scene's newest, that no job names, which is what
-/// `keep_versions` deletes in a running server; anything else missing is `NotFound`.
+/// `keep_versions` deletes in a running server; anything else missing is `MissingBlob`,
+/// naming what needs it.
 /// Returns how many versions went.
 async fn drop_pruned_versions(db: &Path, missing: &[BlobId]) -> Result<u64> {
     let mut conn =
@@ -540,7 +541,26 @@ async fn drop_pruned_versions(db: &Path, missing: &[BlobId]) -> Result<u64> {
         .fetch_one(&mut conn)
         .await?;
         if needed {
-            return Err(StoreError::not_found("blob", id.as_str()));
+            // Say what needs it, so that whoever mends the store knows what it would lose.
+            let names: Vec<String> = sqlx::query_scalar(
+                "SELECT 'version ' || version || ' of scene ' || scene_id FROM scene_versions \
+                 WHERE blob = ?1 \
+                 UNION ALL SELECT 'job ' || id FROM jobs WHERE result_blob = ?1 OR input_blob = ?1 \
+                 UNION ALL SELECT 'frame ' || frame || ' of job ' || job_id FROM job_results \
+                 WHERE blob = ?1 LIMIT 4",
+            )
+            .bind(id.as_str())
+            .fetch_all(&mut conn)
+            .await?;
+            let needed_by = match names.len() {
+                0 => "a record".to_string(),
+                1..=3 => names.join(", "),
+                _ => format!("{} and more", names[..3].join(", ")),
+            };
+            return Err(StoreError::MissingBlob {
+                blob: id.as_str().to_string(),
+                needed_by,
+            });
         }
         dropped += sqlx::query("DELETE FROM scene_versions WHERE blob = ?")
             .bind(id.as_str())
