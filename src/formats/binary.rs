@@ -137,12 +137,15 @@ pub enum BinaryError {
         record: usize,
     },
     /// The body is not exactly `16 + count × record` bytes.
-    #[error("{kind}: body is {len} bytes but the header's count {count} needs exactly {expected} (16 + {count} × {record})")]
+    #[error("{kind}: body is {}{len} bytes but the header's count {count} needs exactly {expected} (16 + {count} × {record})", if *.at_least { "at least " } else { "" })]
     WrongLength {
         /// Which file kind was expected.
         kind: &'static str,
-        /// Body length.
+        /// Body length, or with `at_least` the bytes that had arrived when it ran past
+        /// `expected` (a body without a length, read as it streams).
         len: usize,
+        /// `len` is a lower bound: the body was refused before its end.
+        at_least: bool,
         /// The count in the header.
         count: u64,
         /// Record size.
@@ -179,9 +182,12 @@ impl BinaryError {
             BinaryError::WrongMagic { .. } => Some(0),
             BinaryError::UnknownVersion { .. } => Some(4),
             BinaryError::UnknownFormat { .. } => Some(6),
-            BinaryError::CountOverflow { .. }
-            | BinaryError::WrongLength { .. }
-            | BinaryError::TooMany { .. } => Some(8),
+            BinaryError::CountOverflow { .. } | BinaryError::TooMany { .. } => Some(8),
+            // Where the body and its count part: the end of a short body (the first byte
+            // missing), the first byte past the records of a long one.
+            BinaryError::WrongLength { len, expected, .. } => {
+                Some((*len as u128).min(*expected) as u64)
+            }
             BinaryError::NonFiniteTriangle { offset, .. } => Some(*offset as u64),
         }
     }
@@ -216,6 +222,7 @@ fn parse_header(
         return Err(BinaryError::WrongLength {
             kind,
             len: bytes.len(),
+            at_least: false,
             count: h.count as u64,
             record,
             expected,
@@ -374,10 +381,11 @@ impl Ray1Sink {
         32 * self.rays.len() + self.partial_len
     }
 
-    fn wrong_length(&self, len: u128) -> BinaryError {
+    fn wrong_length(&self, len: u128, at_least: bool) -> BinaryError {
         BinaryError::WrongLength {
             kind: "RAY1",
             len: len.min(usize::MAX as u128) as usize,
+            at_least,
             count: self.count as u64,
             record: 32,
             expected: HEADER_BYTES as u128 + 32 * self.count as u128,
@@ -398,7 +406,7 @@ impl Ray1Sink {
         }
         let total = 32 * self.taken + self.filled() + chunk.len();
         if total > 32 * self.count {
-            return Err(self.wrong_length(HEADER_BYTES as u128 + total as u128));
+            return Err(self.wrong_length(HEADER_BYTES as u128 + total as u128, true));
         }
         while !chunk.is_empty() {
             let seg = self.segment_rays();
@@ -487,7 +495,7 @@ impl Ray1Sink {
         self.count = h.count;
         if let Some(len) = self.hint {
             if len as u128 != HEADER_BYTES as u128 + 32 * self.count as u128 {
-                return Err(self.wrong_length(len as u128));
+                return Err(self.wrong_length(len as u128, false));
             }
             self.rays = Vec::with_capacity(self.segment_rays());
         }
@@ -510,6 +518,7 @@ impl Ray1Sink {
         if self.taken + self.rays.len() != self.count || self.partial_len != 0 {
             return Err(self.wrong_length(
                 HEADER_BYTES as u128 + 32 * self.taken as u128 + self.filled() as u128,
+                false,
             ));
         }
         to_native(&mut self.rays);
@@ -563,7 +572,7 @@ pub fn ray_count(bytes: &[u8], limit: usize) -> Result<usize, BinaryError> {
         len: bytes.len(),
     })?;
     if bytes.len() as u128 != HEADER_BYTES as u128 + 32 * count as u128 {
-        return Err(sink.wrong_length(bytes.len() as u128));
+        return Err(sink.wrong_length(bytes.len() as u128, false));
     }
     Ok(count)
 }
@@ -738,6 +747,23 @@ mod tests {
             ray_count(&bytes[..bytes.len() - 1], 5),
             Err(BinaryError::WrongLength { .. })
         ));
+        // A wrong length's byte offset is where the body and its count part: the first
+        // byte missing from a short body, the first extra one of a long body.
+        let short = ray_count(&bytes[..bytes.len() - 1], 5).unwrap_err();
+        assert_eq!(short.byte_offset(), Some(bytes.len() as u64 - 1));
+        let mut long = bytes.clone();
+        long.extend([0; 7]);
+        let long = ray_count(&long, 5).unwrap_err();
+        assert_eq!(long.byte_offset(), Some(bytes.len() as u64));
+        assert!(!long.to_string().contains("at least"), "{long}");
+        // Streamed without a length, an overrun is refused on the piece that brings it:
+        // the message says the body is at least what had arrived.
+        let mut sink = Ray1Sink::new(usize::MAX, None);
+        sink.push(&bytes).unwrap();
+        let over = sink.push(&[0; 40]).unwrap_err();
+        assert_eq!(over.byte_offset(), Some(bytes.len() as u64));
+        let m = over.to_string();
+        assert!(m.contains(&format!("at least {}", bytes.len() + 40)), "{m}");
         assert!(matches!(
             ray_count(&bytes[..10], 5),
             Err(BinaryError::ShortHeader { len: 10, .. })
