@@ -380,7 +380,17 @@ def test_rays_spawned_from_misses_miss_in_open3d_layout_too(client, fox, fox_ray
 # -- rendering ----------------------------------------------------------------------------
 
 
-def test_render_waits_with_a_progress_bar_and_decodes_the_png(fox, capsys):
+def _result_304s(client) -> int:
+    """How many result downloads the server has answered 304 Not Modified."""
+    total = 0
+    for line in client.metrics().splitlines():
+        if (line.startswith("rayd_http_requests_total{") and 'status="304"' in line
+                and 'route="/v1/jobs/{job}/result"' in line):
+            total += int(float(line.rsplit(" ", 1)[1]))
+    return total
+
+
+def test_render_waits_with_a_progress_bar_and_decodes_the_png(client, fox, capsys):
     job = fox.render(width=64, height=48, spp=2, integrator="normals")
     assert job.state in ("queued", "running", "succeeded")
     final = job.wait(progress=True, timeout=120).info
@@ -390,8 +400,17 @@ def test_render_waits_with_a_progress_bar_and_decodes_the_png(fox, capsys):
     assert isinstance(image, np.ndarray) and image.dtype == np.uint8
     assert image.shape[:2] == (48, 64) and image.shape[2] in (3, 4)
     assert image.std() > 0, "not a blank image"
+    # Asked again, the result comes from the client's copy after a 304: its ETag matched.
+    import io
+
+    from PIL import Image
+
+    not_modified = _result_304s(client)
     png = job.result(raw=True)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert _result_304s(client) == not_modified + 1
+    with Image.open(io.BytesIO(png)) as img:
+        assert np.array_equal(np.asarray(img), image)
     assert job.cancel() is None, "an ended job is deleted"
     with pytest.raises(rayd.ProblemError) as e:
         job.refresh()

@@ -751,6 +751,9 @@ class Job:
         self.info = info
         self.id = info["id"]
         self._expect = expect
+        # The last result fetched: (frame, ETag, Content-Type, bytes). Asking for it again
+        # sends its ETag, and a 304 answer reuses these bytes instead of downloading them.
+        self._last_result = None
 
     def __repr__(self):
         return f"rayd.Job({self.id}, {self.info.get('kind')}, {self.info.get('state')})"
@@ -915,11 +918,21 @@ class Job:
         A render's PNG comes back as an ``(H, W, C)`` uint8 array when Pillow is installed,
         else as the PNG's bytes; an EXR always as bytes; an asynchronous trace's HIT1 as
         :class:`Hits`. ``raw=True`` gives the bytes in every case. ``frame`` picks one frame
-        of a multi-frame render."""
-        resp, body = self.client._binary("GET", f"{self._path}/result", params={"frame": frame})
+        of a multi-frame render. Asking again for the result last fetched sends its
+        ``ETag`` as ``If-None-Match``: the server answers 304 and the bytes are not sent
+        again."""
+        kept = self._last_result if self._last_result and self._last_result[0] == frame else None
+        headers = {"If-None-Match": kept[1]} if kept else None
+        resp, body = self.client._binary("GET", f"{self._path}/result", params={"frame": frame},
+                                         headers=headers)
+        if resp.status_code == 304 and kept:
+            ctype, body = kept[2], kept[3]
+        else:
+            ctype = resp.headers.get("Content-Type", "").split(";")[0].strip()
+            etag = resp.headers.get("ETag")
+            self._last_result = (frame, etag, ctype, body) if etag else None
         if raw:
             return body
-        ctype = resp.headers.get("Content-Type", "").split(";")[0].strip()
         if ctype == OCTET:
             fmt, count = self._expect if self._expect else (None, None)
             return Hits(body, formats.decode_hits(body, fmt, count))
