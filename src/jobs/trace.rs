@@ -156,36 +156,71 @@ impl Engine {
         control: &Control,
     ) -> Result<(HitBody, TraceReport), JobError> {
         let kind = self.batch_accel(geometry, request, rays.len(), 0.0)?;
-        let (body, prepared, trace_seconds) =
-            if kind.large_batches() || rays.len() <= STREAM_SEGMENT_RAYS {
-                control.step(|| {
-                    let prepared = self.batch_structure(geometry, kind, request, rays.len())?;
+        // DACRT partitions whatever batch it is given, and the larger the better, so it
+        // takes the batch whole where nothing can wait for it (the command line: no
+        // scheduler) or where it is under two of its steps.
+        let whole = if kind.large_batches() {
+            !control.wave_seconds().is_finite() || rays.len() < 2 * DACRT_STEP_RAYS
+        } else {
+            rays.len() <= STREAM_SEGMENT_RAYS
+        };
+        let (body, prepared, trace_seconds) = if whole {
+            control.step(|| {
+                let prepared = self.batch_structure(geometry, kind, request, rays.len())?;
+                let t0 = Instant::now();
+                let body = trace_into_body(prepared.accel.as_ref(), rays, request);
+                Ok::<_, JobError>((body, prepared, seconds_since(t0)))
+            })??
+        } else {
+            // An accelerator that answers each ray on its own traces a large batch in
+            // segments, one step each, as a streamed batch is: work that outranks it (a
+            // synchronous trace, for an asynchronous one) runs between them instead of
+            // after the whole batch (session 31's review: a 1K trace waited 1.5 s behind
+            // an asynchronous 4M one). The answer is the same bytes.
+            // DACRT traces a batch of many steps in parts of at least `DACRT_STEP_RAYS`,
+            // each sized from the rate so far to last the scheduler's wave: while a
+            // request waits that is the smallest part, otherwise parts of about half a
+            // second (a 1K trace waited 1,053 ms behind a synchronous 4M-ray DACRT
+            // trace taken whole, session 31's review). Closest hits are the same bytes
+            // whatever the parts (the contract's order: smallest t, then lowest id).
+            let prepared =
+                control.step(|| self.batch_structure(geometry, kind, request, rays.len()))??;
+            let accel = prepared.accel.as_ref();
+            let mut out = BodyWriter::new(request.hit, rays.len());
+            let mut trace_seconds = 0.0;
+            let mut first = 0;
+            let mut rate = None;
+            while first < rays.len() {
+                let left = rays.len() - first;
+                let take = if kind.large_batches() {
+                    let want = rate.map_or(DACRT_STEP_RAYS, |r: f64| {
+                        (r * control.wave_seconds()).min(left as f64) as usize
+                    });
+                    let want = want.max(DACRT_STEP_RAYS);
+                    // No part smaller than a step is left over for the end.
+                    if left - want.min(left) < DACRT_STEP_RAYS {
+                        left
+                    } else {
+                        want
+                    }
+                } else {
+                    left.min(STREAM_SEGMENT_RAYS)
+                };
+                let segment = &rays[first..first + take];
+                let seconds = control.step(|| {
                     let t0 = Instant::now();
-                    let body = trace_into_body(prepared.accel.as_ref(), rays, request);
-                    Ok::<_, JobError>((body, prepared, seconds_since(t0)))
-                })??
-            } else {
-                // An accelerator that answers each ray on its own traces a large batch in
-                // segments, one step each, as a streamed batch is: work that outranks it (a
-                // synchronous trace, for an asynchronous one) runs between them instead of
-                // after the whole batch (session 31's review: a 1K trace waited 1.5 s behind
-                // an asynchronous 4M one). The answer is the same bytes.
-                let prepared = control
-                    .step(|| self.batch_structure(geometry, kind, request, rays.len()))??;
-                let accel = prepared.accel.as_ref();
-                let mut out = BodyWriter::new(request.hit, rays.len());
-                let mut trace_seconds = 0.0;
-                for (k, segment) in rays.chunks(STREAM_SEGMENT_RAYS).enumerate() {
-                    let first = k * STREAM_SEGMENT_RAYS;
-                    trace_seconds += control.step(|| {
-                        let t0 = Instant::now();
-                        out.trace(accel, segment, request.query, first);
-                        seconds_since(t0)
-                    })?;
-                    control.progress((first + segment.len()) as f64 / rays.len() as f64);
+                    out.trace(accel, segment, request.query, first);
+                    seconds_since(t0)
+                })?;
+                trace_seconds += seconds;
+                if seconds > 0.0 {
+                    rate = Some(take as f64 / seconds);
                 }
-                (out.finish(), prepared, trace_seconds)
-            };
+                first += take;
+                control.progress(first as f64 / rays.len() as f64);
+            }
+            (out.finish(), prepared, trace_seconds)
+        };
         control.progress(1.0);
         let report = self.report(rays.len(), &prepared, trace_seconds, request, invalid_rays);
         Ok((body, report))
@@ -304,6 +339,11 @@ pub enum Arrival {
 /// threads each get thousands, small enough that the last segment's trace, which cannot
 /// overlap the upload, is short.
 pub const STREAM_SEGMENT_RAYS: usize = 1 << 16;
+
+/// The fewest rays a DACRT trace of a large batch takes in one scheduler step: DACRT's
+/// partitioning near the root costs each part the same whatever its size, and sampling
+/// pays only on large parts (BENCHMARKS §22.3), so parts stay large even while work waits.
+pub const DACRT_STEP_RAYS: usize = 1 << 20;
 
 impl Engine {
     /// Whether a trace with `request` of `rays` rays over `geometry`, arriving over
@@ -624,6 +664,51 @@ mod tests {
             seen.len() >= 3 && seen.windows(2).all(|w| w[0] <= w[1]),
             "{seen:?}"
         );
+    }
+
+    /// A DACRT batch of several steps, traced under a scheduler, in parts: the same bytes
+    /// as `brute`'s closest hits, progress along the way; without a scheduler (the
+    /// command line) it is one part.
+    #[test]
+    fn a_large_dacrt_batch_traced_in_parts_answers_the_same_bytes() {
+        let engine = Engine::new(Default::default()).unwrap();
+        let g = scene();
+        let n = 2 * DACRT_STEP_RAYS + 4321;
+        let rays = many_rays(n);
+        let brute =
+            crate::accel::build(AccelKind::Brute, &g.triangles, &Default::default()).unwrap();
+        let mut want = vec![Hit::MISS; n];
+        brute.trace(&rays, Query::Closest, &mut want);
+        let want = write_hits(&want, HitFormat::TPrimUv);
+        let req = TraceRequest {
+            accel: AccelKind::DacrtSampled,
+            hit: HitFormat::TPrimUv,
+            ..Default::default()
+        };
+        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let log = Arc::clone(&seen);
+        let ticket = engine.scheduler().admit(50, false).unwrap();
+        let control = engine.control(
+            Default::default(),
+            Some(Arc::new(move |p| log.lock().unwrap().push(p))),
+            ticket,
+        );
+        let (body, _) = engine.trace(&g, &rays, &req, 0, &control).unwrap();
+        assert_eq!(body.as_ref(), &want[..]);
+        let seen = seen.lock().unwrap().clone();
+        assert!(
+            seen.len() >= 2 && seen[0] < 1.0 && seen.windows(2).all(|w| w[0] <= w[1]),
+            "{seen:?}"
+        );
+        // The first part is the smallest a DACRT step takes.
+        assert!(
+            (seen[0] - DACRT_STEP_RAYS as f64 / n as f64).abs() < 1e-12,
+            "{seen:?}"
+        );
+        let (whole, _) = engine
+            .trace(&g, &rays, &req, 0, &engine.detached())
+            .unwrap();
+        assert_eq!(whole.as_ref(), &want[..]);
     }
 
     #[test]
