@@ -31,8 +31,9 @@
 //! or between steps, and able to start — keeps the pool from the tickets it outranks for
 //! [`ABSENT_GRACE`] after it went absent; a job that stays away longer (it is writing its
 //! result, say) leaves the pool to them. Among synchronous traces (one priority) the
-//! earlier does not hold the pool back from the later: their steps interleave, so a small
-//! trace behind a large streamed one waits for one segment, not for the whole batch. Background work (a thumbnail, small) is not held
+//! earlier does not hold the pool back from the later, and after each step a trace goes
+//! behind those that wait: their steps take turns, so a small trace behind a large one
+//! waits for one of its segments or parts, not for the whole batch. Background work (a thumbnail, small) is not held
 //! back: it may still run between another job's steps.
 
 use std::collections::BTreeMap;
