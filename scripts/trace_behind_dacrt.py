@@ -54,6 +54,8 @@ def main():
     ap.add_argument("--alone", action="store_true",
                     help="no small traces: time the big one by itself")
     a = ap.parse_args()
+    if a.big <= 0 or a.big % (1 << 16):
+        ap.error("--big must be a positive multiple of 65536 (the batch repeats 64K rays)")
     octet = "application/octet-stream"
     with serve(a.bin, 2) as (port, _, _):
         body, _, _ = request(port, "POST", "/v1/scenes", Path(a.scene).read_bytes(),

@@ -158,9 +158,14 @@ impl Engine {
         let kind = self.batch_accel(geometry, request, rays.len(), 0.0)?;
         // DACRT partitions whatever batch it is given, and the larger the better, so it
         // takes the batch whole where nothing can wait for it (the command line: no
-        // scheduler) or where it is under two of its steps.
+        // scheduler) or where it is under two of its smallest parts. On a large scene a
+        // part needs many rays a triangle to trace as fast as the whole batch (BENCHMARKS
+        // §40): parts hold at least `DACRT_STEP_RAYS` and `DACRT_PART_RAYS_PER_TRIANGLE`
+        // rays a triangle.
+        let min_part = DACRT_STEP_RAYS
+            .max(DACRT_PART_RAYS_PER_TRIANGLE.saturating_mul(geometry.triangles.len()));
         let whole = if kind.large_batches() {
-            !control.wave_seconds().is_finite() || rays.len() < 2 * DACRT_STEP_RAYS
+            !control.wave_seconds().is_finite() || rays.len() < 2 * min_part
         } else {
             rays.len() <= STREAM_SEGMENT_RAYS
         };
@@ -193,12 +198,12 @@ impl Engine {
             while first < rays.len() {
                 let left = rays.len() - first;
                 let take = if kind.large_batches() {
-                    let want = rate.map_or(DACRT_STEP_RAYS, |r: f64| {
+                    let want = rate.map_or(min_part, |r: f64| {
                         (r * control.wave_seconds()).min(left as f64) as usize
                     });
-                    let want = want.max(DACRT_STEP_RAYS);
-                    // No part smaller than a step is left over for the end.
-                    if left - want.min(left) < DACRT_STEP_RAYS {
+                    let want = want.max(min_part);
+                    // No part smaller than the smallest is left over for the end.
+                    if left - want.min(left) < min_part {
                         left
                     } else {
                         want
@@ -342,8 +347,16 @@ pub const STREAM_SEGMENT_RAYS: usize = 1 << 16;
 
 /// The fewest rays a DACRT trace of a large batch takes in one scheduler step: DACRT's
 /// partitioning near the root costs each part the same whatever its size, and sampling
-/// pays only on large parts (BENCHMARKS §22.3), so parts stay large even while work waits.
+/// pays only on large parts (BENCHMARKS §22.3), so parts stay large even while work waits
+/// (larger still on large scenes: [`DACRT_PART_RAYS_PER_TRIANGLE`]).
 pub const DACRT_STEP_RAYS: usize = 1 << 20;
+
+/// The fewest rays a triangle a part of a DACRT batch holds. Over MetalRoughSpheres (1.04M
+/// triangles) a 4M-ray batch in parts of 2²⁰ took 30% longer than whole, a 16M one in
+/// parts of 3.1M 24% longer; over the saw (198K) and DamagedHelmet (15K), parts of 2²⁰
+/// took no longer than the whole 16M batch (BENCHMARKS §40). At 16 rays a triangle a 16M
+/// batch over 1M triangles stays whole and the saw's parts hold 3.2M rays.
+pub const DACRT_PART_RAYS_PER_TRIANGLE: usize = 16;
 
 impl Engine {
     /// Whether a trace with `request` of `rays` rays over `geometry`, arriving over

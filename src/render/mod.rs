@@ -424,9 +424,11 @@ pub fn render<W: Waves + ?Sized>(
     let mut scratch = Scratch::default();
     let mut start = 0;
     while start < n {
+        // A wave's pixels are numbered from its start in u32 (`render_wave`).
         let end = visible
             .end_after(start, wave_pixels, w as usize)
-            .map_or(n, |e| e.min(n));
+            .map_or(n, |e| e.min(n))
+            .min(start + u32::MAX as usize);
         let traced = inside(start, end);
         let mut seconds = 0.0;
         for first in (0..spp).step_by(run as usize) {
