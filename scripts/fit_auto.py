@@ -95,12 +95,18 @@ def current(path=MODEL_RS):
                 first_hit=num("first_hit")[0])
 
 
+def _terms(p, tris, threads):
+    """The model's thread speed-up (of a 2-thread speed-up) and its bent log₂ T (of an
+    exponent), as src/accel/auto.rs's `speedup` and `shaped`."""
+    lg = np.maximum(np.log2(tris), 1.0)
+    return (lambda s2: threads ** np.log2(s2),
+            lambda e: lg * (np.clip(lg, p["lo"], 20.0) / 16.0) ** e)
+
+
 def predict(p, tris, threads, rays):
     """The model's frame seconds of each strategy (src/accel/auto.rs's `predict`, one
     frame standing alone, one batch). Works on numbers and on broadcasting numpy arrays."""
-    sp = lambda s2: threads ** np.log2(s2)
-    lg = np.maximum(np.log2(tris), 1.0)
-    shape = lambda e: lg * (np.clip(lg, p["lo"], 20.0) / 16.0) ** e
+    sp, shape = _terms(p, tris, threads)
     bvh_trace = rays * p["bvh_ray"] * shape(p["e_b"]) / sp(p["s_t"])
     return {
         ("mbvh8", "rebuild"): p["build"] * tris / sp(p["s_b"]) + bvh_trace,
@@ -251,9 +257,7 @@ def score_static(p, sits):
     fh = np.array([x["first_hit"] for x in v])
     bvh_ms = np.array([x["mbvh8"] for x in v])
     dacrt_ms = np.array([x["dacrt-sampled"] for x in v])
-    sp = lambda s2: threads ** np.log2(s2)
-    lg = np.maximum(np.log2(tris), 1.0)
-    shape = lambda e: lg * (np.clip(lg, p["lo"], 20.0) / 16.0) ** e
+    sp, shape = _terms(p, tris, threads)
     bvh = (np.array(p["builds"])[q] * tris / sp(p["s_b"])
            + rays * p["bvh_ray"] * np.array(p["traces"])[q] * shape(p["e_b"])
            * np.where(fh, p["first_hit"], 1.0) / sp(p["s_t"]))

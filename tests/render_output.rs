@@ -72,6 +72,16 @@ fn look() -> CameraChoice {
     }
 }
 
+/// A view from far off, where `two_quads` fills a small rectangle of the image.
+fn far() -> CameraChoice {
+    CameraChoice::LookAt {
+        eye: [1.5, 4.0, 14.0],
+        target: [0.0, 0.4, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov: 35.0,
+    }
+}
+
 fn all_aovs() -> AovSet {
     AovSet {
         depth: true,
@@ -288,12 +298,7 @@ fn the_image_does_not_depend_on_the_wave_size() {
 fn pixels_outside_the_scenes_rectangle_are_the_misses_they_would_trace() {
     let tris = two_quads();
     let bounds = rayd::scene::bounds_of(&tris).unwrap();
-    let far = CameraChoice::LookAt {
-        eye: [1.5, 4.0, 14.0],
-        target: [0.0, 0.4, 0.0],
-        up: [0.0, 1.0, 0.0],
-        fov: 35.0,
-    };
+    let far = far();
     let accel = build(AccelKind::Mbvh8, &tris, &BuildOptions::default()).unwrap();
     let integrators = [
         Integrator::Primary,
@@ -990,12 +995,7 @@ fn progress_counts_the_pixels_that_trace() {
 
     let tris = two_quads();
     let bounds = rayd::scene::bounds_of(&tris).unwrap();
-    let far = CameraChoice::LookAt {
-        eye: [1.5, 4.0, 14.0],
-        target: [0.0, 0.4, 0.0],
-        up: [0.0, 1.0, 0.0],
-        fov: 35.0,
-    };
+    let far = far();
     let (w, h, spp) = (320u32, 240u32, 2u32);
     let options = RenderOptions {
         width: w,

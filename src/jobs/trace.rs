@@ -638,6 +638,29 @@ mod tests {
         assert_eq!(body.as_ref(), &write_hits(&want, HitFormat::Occluded)[..]);
     }
 
+    /// `brute`'s closest hits of `rays` over `g`: the reference answer.
+    fn brute_closest(g: &Geometry, rays: &[Ray]) -> Vec<Hit> {
+        let brute =
+            crate::accel::build(AccelKind::Brute, &g.triangles, &Default::default()).unwrap();
+        let mut want = vec![Hit::MISS; rays.len()];
+        brute.trace(rays, Query::Closest, &mut want);
+        want
+    }
+
+    /// A control under `engine`'s scheduler (a job of priority 50, so its waves are
+    /// finite), with the progress it reports logged.
+    fn scheduled(engine: &Engine) -> (Control, Arc<std::sync::Mutex<Vec<f64>>>) {
+        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let log = Arc::clone(&seen);
+        let ticket = engine.scheduler().admit(50, false).unwrap();
+        let control = engine.control(
+            Default::default(),
+            Some(Arc::new(move |p| log.lock().unwrap().push(p))),
+            ticket,
+        );
+        (control, seen)
+    }
+
     /// A batch larger than a segment, traced by a per-ray core in segments (one step
     /// each): the same bytes as `brute`'s answer, and progress reported along the way.
     #[test]
@@ -653,18 +676,8 @@ mod tests {
                 tmax: f32::INFINITY,
             })
             .collect();
-        let brute =
-            crate::accel::build(AccelKind::Brute, &g.triangles, &Default::default()).unwrap();
-        let mut want = vec![Hit::MISS; n];
-        brute.trace(&rays, Query::Closest, &mut want);
-        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
-        let log = Arc::clone(&seen);
-        let ticket = engine.scheduler().admit(50, false).unwrap();
-        let control = engine.control(
-            Default::default(),
-            Some(Arc::new(move |p| log.lock().unwrap().push(p))),
-            ticket,
-        );
+        let want = brute_closest(&g, &rays);
+        let (control, seen) = scheduled(&engine);
         let req = TraceRequest {
             accel: AccelKind::Mbvh8,
             hit: HitFormat::TPrimUv,
@@ -688,24 +701,14 @@ mod tests {
         let g = scene();
         let n = 2 * DACRT_STEP_RAYS + 4321;
         let rays = many_rays(n);
-        let brute =
-            crate::accel::build(AccelKind::Brute, &g.triangles, &Default::default()).unwrap();
-        let mut want = vec![Hit::MISS; n];
-        brute.trace(&rays, Query::Closest, &mut want);
+        let want = brute_closest(&g, &rays);
         let want = write_hits(&want, HitFormat::TPrimUv);
         let req = TraceRequest {
             accel: AccelKind::DacrtSampled,
             hit: HitFormat::TPrimUv,
             ..Default::default()
         };
-        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
-        let log = Arc::clone(&seen);
-        let ticket = engine.scheduler().admit(50, false).unwrap();
-        let control = engine.control(
-            Default::default(),
-            Some(Arc::new(move |p| log.lock().unwrap().push(p))),
-            ticket,
-        );
+        let (control, seen) = scheduled(&engine);
         let (body, _) = engine.trace(&g, &rays, &req, 0, &control).unwrap();
         assert_eq!(body.as_ref(), &want[..]);
         let seen = seen.lock().unwrap().clone();
