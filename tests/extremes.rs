@@ -1314,6 +1314,75 @@ fn triangles_whose_products_leave_f32s_range_are_still_hit() {
     );
 }
 
+/// Grids of triangles 1e-18 to 1e-36 across at the ray origins, alone and beside a grid of
+/// 1e30 triangles that shares a vertex with them. The watertight test's t numerator, the
+/// extent across the ray squared times the depth along it, is ~1e-54 there, below f32's
+/// range: it underflowed to ±0, so a grid 1e-18 *behind* the origin was hit at t = 0 by
+/// `brute` while the trees and DACRT, whose boxes lay behind the ray, missed it (about one
+/// ray in eight; session 30's batch-dependent DACRT `t = 0` hit was this). Such lanes are
+/// decided again with their coordinates scaled, as those whose products overflow are.
+#[test]
+fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
+    let grid = |n: usize, side: f32, z: f32, tilt: f32| {
+        let mut tris = Vec::new();
+        let at = |i: usize, j: usize| {
+            let (x, y) = (i as f32 * side, j as f32 * side);
+            [x, y, z * side + tilt * x]
+        };
+        for i in 0..n {
+            for j in 0..n {
+                let [a, b, c, d] = [at(i, j), at(i + 1, j), at(i + 1, j + 1), at(i, j + 1)];
+                tris.push(Triangle { v: [a, b, c] });
+                tris.push(Triangle { v: [a, c, d] });
+            }
+        }
+        tris
+    };
+    let watertight_cores: Vec<AccelKind> = kinds()
+        .into_iter()
+        .filter(|k| *k != AccelKind::Embree)
+        .collect();
+    let mut rng = Rng(0x5ca1e);
+    let mut hit = 0;
+    let mut rays_traced = 0;
+    for side in [1e-18f32, 1e-22, 1e-30, 1e-36] {
+        for case in 0..6 {
+            let mut tris = grid(4, side, rng.sym(), 0.3 * rng.sym());
+            if case % 2 == 1 {
+                // The 1e30 grid, shifted so that one of its vertices is the origin.
+                let (dx, dy) = ((case / 2 % 3) as f32, (case / 2 % 2) as f32);
+                tris.extend(
+                    grid(3, 1e30, 0.5 * rng.sym(), 0.3)
+                        .into_iter()
+                        .map(|t| Triangle {
+                            v: t.v.map(|p| [p[0] - dx * 1e30, p[1] - dy * 1e30, p[2]]),
+                        }),
+                );
+            }
+            let rays: Vec<Ray> = (0..256)
+                .map(|k| {
+                    let org = match k % 3 {
+                        0 => [0.0; 3],
+                        1 => [
+                            4.0 * side * rng.unit(),
+                            4.0 * side * rng.unit(),
+                            2.0 * side * rng.sym(),
+                        ],
+                        _ => rng.vec(10.0 * side),
+                    };
+                    ray(org, [rng.sym(), rng.sym(), rng.sym()], 0.0, f32::INFINITY)
+                })
+                .collect();
+            // Every core bit for bit `brute`'s, each hit within the f64 oracle's bounds (a
+            // hit at t = 0 on a plane 1e-18 behind the origin is not).
+            let hits = cores(&watertight_cores, Precision::Watertight, &tris, &rays);
+            hit += hits.iter().filter(|h| h.is_hit()).count();
+            rays_traced += rays.len();
+        }
+    }
+    assert!(hit > rays_traced / 8, "{hit} hits of {rays_traced} rays");
+}
+
 /// Directions of 1e-39–1e-35 (hits at t up to ~1e39, some beyond f32's range) and a scene
 /// at 2^120. The trees' fused slab test (`plane·inv − org·inv`) overflowed its products
 /// long before the distances did, and `mbvh4`/`mbvh8` missed hits every other core found;

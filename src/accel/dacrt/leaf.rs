@@ -177,6 +177,7 @@ impl LeafTest for Watertight {
             || rel,
             r.shear,
             inside,
+            [tt, det],
             t,
             v * rcp,
             w * rcp,

@@ -206,12 +206,17 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
     }
 }
 
-/// Whether a paper t is finite: the test's products stayed in f32's range. Where they did
-/// not (an edge function times a depth past f32's largest, or a determinant so small that
-/// its reciprocal overflows), the lane is decided again by [`rescaled_lane`].
+/// Whether the paper's test of a lane stayed in f32's range: its t finite, and its t
+/// numerator `tt` and determinant `det` normal numbers. Where they did not (an edge
+/// function times a depth past f32's largest; a determinant so small that its reciprocal
+/// overflows, or subnormal, its edge functions rounded to a few bits; a numerator that
+/// underflowed, which turned the t of a plane 1e-18 behind a ray origin into `-0`, a hit at
+/// `tmin = 0` that the trees' boxes then culled), the lane is decided again by
+/// [`rescaled_lane`]. A numerator of exactly 0 (the origin in the triangle's plane) is
+/// decided again too, to the same t.
 #[inline(always)]
-fn in_range(t: f32) -> bool {
-    t.is_finite()
+fn in_range(t: f32, tt: f32, det: f32) -> bool {
+    t.is_finite() && tt.abs().min(det.abs()) >= f32::MIN_POSITIVE
 }
 
 /// The edge functions `U, V, W` of one lane from its sheared coordinates across the ray
@@ -273,9 +278,15 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
     }
     let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
     let rcp = 1.0 / det;
-    // t scales as the depths do.
-    let t = scale(tt * rcp, e_z);
-    in_range(t).then_some(TriHit {
+    // t scales as the depths do; one that would round to a zero keeps its sign as the
+    // smallest subnormal, so that a plane just behind the origin is not hit at `tmin = 0`
+    // (f32 without a limit on the exponent has no zero there either).
+    let q = tt * rcp;
+    let t = match scale(q, e_z) {
+        t if t == 0.0 && q != 0.0 => f32::from_bits(1).copysign(q),
+        t => t,
+    };
+    t.is_finite().then_some(TriHit {
         t,
         u: v * rcp,
         v: w * rcp,
@@ -322,8 +333,9 @@ fn rescaled8<S: Simd>(
     )
 }
 
-/// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` whose
-/// t is not finite decided again by [`rescaled_lane`] (the scalar test's rule, lane for
+/// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` that
+/// left f32's range (`in_range`: t not finite, or its numerator `tt` or determinant `det`
+/// not normal) decided again by [`rescaled_lane`] (the scalar test's rule, lane for
 /// lane); shared by the layer's 8-triangle test and DACRT's 8-ray leaf test. `rel` gives
 /// the vertices relative to the origin, asked for only then (a closure rather than a
 /// reference: with a reference, `mbvh8` and `dacrt` ran 3% more instructions by
@@ -335,6 +347,7 @@ pub fn in_range8<S: Simd>(
     rel: impl FnOnce() -> [[S::F8; 3]; 3],
     shear: [S::F8; 3],
     inside: S::M8,
+    [tt, det]: [S::F8; 2],
     t: S::F8,
     bu: S::F8,
     bv: S::F8,
@@ -343,7 +356,9 @@ pub fn in_range8<S: Simd>(
     // t − t is 0 exactly where t is finite (NaN for ±inf and NaN): one operation fewer
     // than two bounds, on the kernels' hot path.
     #[allow(clippy::eq_op)] // t − t is meant: 0, or NaN where t is not finite.
-    let bad = inside.andnot((t - t).eq(s.splat_f8(0.0)));
+    let finite = (t - t).eq(s.splat_f8(0.0));
+    let normal = tt.abs().min(det.abs()).ge(s.splat_f8(f32::MIN_POSITIVE));
+    let bad = inside.andnot(finite & normal);
     if bad.none() {
         return (t, bu, bv, valid);
     }
@@ -366,7 +381,7 @@ impl Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = 1.0 / det;
         let t = tt * rcp;
-        if !in_range(t) {
+        if !in_range(t, tt, det) {
             return rescaled_lane(rel, r.shear).filter(|h| h.t >= r.tmin && h.t <= tmax);
         }
         (det != 0.0 && t >= r.tmin && t <= tmax).then_some(TriHit {
@@ -442,6 +457,7 @@ impl TriTest for Watertight {
             || rel,
             [sx, sy, sz],
             inside,
+            [tt, det],
             t,
             v * rcp,
             w * rcp,
