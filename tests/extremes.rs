@@ -1319,8 +1319,11 @@ fn triangles_whose_products_leave_f32s_range_are_still_hit() {
 /// extent across the ray squared times the depth along it, is ~1e-54 there, below f32's
 /// range: it underflowed to ±0, so a grid 1e-18 *behind* the origin was hit at t = 0 by
 /// `brute` while the trees and DACRT, whose boxes lay behind the ray, missed it (about one
-/// ray in eight; session 30's batch-dependent DACRT `t = 0` hit was this). Such lanes are
-/// decided again with their coordinates scaled, as those whose products overflow are.
+/// ray in eight; session 30's batch-dependent DACRT `t = 0` hit beside such a grid came
+/// from it). Such lanes are decided again with their coordinates scaled, as those whose
+/// products overflow are. Last, planes 2^-149 (the smallest subnormal) before and behind
+/// the origin: the t numerator underflows to ±0 in the paper's test; the one behind is
+/// missed, the one before hit at t = +0.
 #[test]
 fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
     let grid = |n: usize, side: f32, z: f32, tilt: f32| {
@@ -1346,18 +1349,24 @@ fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
     let mut hit = 0;
     let mut rays_traced = 0;
     for side in [1e-18f32, 1e-22, 1e-30, 1e-36] {
-        for case in 0..6 {
+        for case in 0..8 {
+            // Moved so that its vertex `at` (the first of cell `at`) is the origin.
+            let moved = |tris: Vec<Triangle>, at: usize| {
+                let o = tris[2 * at].v[0];
+                tris.into_iter()
+                    .map(|t| Triangle {
+                        v: t.v.map(|p| [p[0] - o[0], p[1] - o[1], p[2] - o[2]]),
+                    })
+                    .collect::<Vec<_>>()
+            };
             let mut tris = grid(4, side, rng.sym(), 0.3 * rng.sym());
+            if case % 4 >= 2 {
+                // The small grid through the origin too (session 30's case).
+                tris = moved(tris, 0);
+            }
             if case % 2 == 1 {
-                // The 1e30 grid, shifted so that one of its vertices is the origin.
-                let (dx, dy) = ((case / 2 % 3) as f32, (case / 2 % 2) as f32);
-                tris.extend(
-                    grid(3, 1e30, 0.5 * rng.sym(), 0.3)
-                        .into_iter()
-                        .map(|t| Triangle {
-                            v: t.v.map(|p| [p[0] - dx * 1e30, p[1] - dy * 1e30, p[2]]),
-                        }),
-                );
+                // The 1e30 grid, one of its vertices at the origin.
+                tris.extend(moved(grid(3, 1e30, 0.5 * rng.sym(), 0.3), case / 2 % 9));
             }
             let rays: Vec<Ray> = (0..256)
                 .map(|k| {
@@ -1381,6 +1390,112 @@ fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
         }
     }
     assert!(hit > rays_traced / 8, "{hit} hits of {rays_traced} rays");
+    let tiny = f32::from_bits(1);
+    for (z, hits) in [(-tiny, false), (tiny, true)] {
+        let tris = vec![Triangle {
+            v: [[-1.0, -1.0, z], [2.0, -1.0, z], [-1.0, 2.0, z]],
+        }];
+        let rays = [ray([0.0; 3], [0.0, 0.0, 4.0], 0.0, f32::INFINITY)];
+        let h = cores(&watertight_cores, Precision::Watertight, &tris, &rays)[0];
+        assert_eq!(h.is_hit(), hits, "plane at z = {z:e}: {h:?}");
+        assert!(!hits || h.t.to_bits() == 0, "{h:?}");
+    }
+}
+
+/// Clusters of triangles from 1e-35 to 1e35 across, centred at the origin or up to 1e35
+/// from it, side by side, and rays from in and around them with directions of 1e-30 to
+/// 1e30 (a third aimed at a triangle). Every core gives `brute`'s closest hits bit for bit,
+/// each within the f64 oracle's bounds, and `any` agrees on hit and miss. Before session
+/// 35 a determinant that overflowed (1e19 triangles, directions of 1e18) made the paper's
+/// t `tt · 0 = -0`: `brute` hit a plane 0.28 behind the origin at t = 0 while the trees
+/// missed it; lanes whose t, numerator or determinant is not a normal number are now
+/// decided again scaled.
+#[test]
+fn clusters_at_every_scale_keep_every_core_exact() {
+    let watertight_cores: Vec<AccelKind> = kinds()
+        .into_iter()
+        .filter(|k| *k != AccelKind::Embree)
+        .collect();
+    let mut rng = Rng(0x5ca1e5);
+    let pow10 =
+        |rng: &mut Rng, lo: f32, hi: f32| 10f64.powf(f64::from(lo + (hi - lo) * rng.unit()));
+    let (mut traced, mut hit) = (0, 0);
+    for _case in 0..48 {
+        let mut tris = Vec::new();
+        let mut clusters = Vec::new();
+        for _ in 0..1 + rng.next() % 4 {
+            let c = if rng.next().is_multiple_of(3) {
+                [0.0; 3]
+            } else {
+                let m = pow10(&mut rng, -35.0, 35.0);
+                [0; 3].map(|_| m * f64::from(rng.sym()))
+            };
+            let size = pow10(&mut rng, -35.0, 35.0);
+            for _ in 0..1 + rng.next() % 30 {
+                let v =
+                    [0; 3].map(|_| [0, 1, 2].map(|k| (c[k] + size * f64::from(rng.sym())) as f32));
+                let t = Triangle { v };
+                if !t.is_degenerate() && v.iter().flatten().all(|x| x.is_finite()) {
+                    tris.push(t);
+                }
+            }
+            clusters.push((c, size));
+        }
+        if tris.is_empty() {
+            continue;
+        }
+        let mut rays = Vec::new();
+        for _ in 0..128 {
+            let (c, size) = clusters[rng.next() as usize % clusters.len()];
+            let off = size * pow10(&mut rng, -3.0, 3.0);
+            let org = match rng.next() % 4 {
+                0 => [0.0; 3],
+                _ => [0, 1, 2].map(|k| (c[k] + off * f64::from(rng.sym())) as f32),
+            };
+            let dir = if rng.next().is_multiple_of(3) {
+                let t = &tris[rng.next() as usize % tris.len()];
+                let w = [rng.unit(), rng.unit(), rng.unit()].map(f64::from);
+                let total = w[0] + w[1] + w[2];
+                [0, 1, 2].map(|k| {
+                    let p = (0..3).map(|i| f64::from(t.v[i][k]) * w[i]).sum::<f64>() / total;
+                    (p - f64::from(org[k])) as f32
+                })
+            } else {
+                let m = if rng.next().is_multiple_of(4) {
+                    pow10(&mut rng, -30.0, 30.0)
+                } else {
+                    1.0
+                };
+                [0; 3].map(|_| (m * f64::from(rng.sym())) as f32)
+            };
+            if dir.iter().any(|&d| d != 0.0) && dir.iter().all(|d| d.is_finite()) {
+                rays.push(ray(org, dir, 0.0, f32::INFINITY));
+            }
+        }
+        let closest = cores(&watertight_cores, Precision::Watertight, &tris, &rays);
+        for &kind in &watertight_cores {
+            let any = trace_q(
+                kind,
+                BuildQuality::Sah,
+                Precision::Watertight,
+                &tris,
+                &rays,
+                Query::Any,
+            );
+            for (i, (a, c)) in any.iter().zip(&closest).enumerate() {
+                assert_eq!(
+                    a.is_hit(),
+                    c.is_hit(),
+                    "{} any, ray {i}: {:?}",
+                    kind.name(),
+                    rays[i]
+                );
+            }
+        }
+        traced += rays.len();
+        hit += closest.iter().filter(|h| h.is_hit()).count();
+    }
+    assert!(hit > traced / 4, "{hit} hits of {traced} rays");
 }
 
 /// Directions of 1e-39–1e-35 (hits at t up to ~1e39, some beyond f32's range) and a scene

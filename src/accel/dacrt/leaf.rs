@@ -170,7 +170,7 @@ impl LeafTest for Watertight {
         let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
         let rcp = s.splat_f8(1.0) / det;
         let t = tt * rcp;
-        // Lanes whose products left f32's range, decided again as the scalar test does.
+        // Lanes that left f32's normal range, decided again as the scalar test does.
         // (`rel` is live here anyway: the decision t's entry below reads it.)
         let (t, bu, bv, valid) = in_range8(
             s,
@@ -181,7 +181,8 @@ impl LeafTest for Watertight {
             t,
             v * rcp,
             w * rcp,
-            inside & det.ne(zero),
+            // Lanes that `in_range` passes have a normal det; the others are decided again.
+            inside,
         );
         let mask = valid & t.ge(tmin) & t.le(tmax);
         // The layer's decision t (`lift_t`), per ray.

@@ -130,7 +130,10 @@ fn conditioning(ray: &Ray, tri: &Triangle) -> Option<(f64, f64, f64)> {
 /// - `watertight`: `2^-24·|t*| + 2^-49·S·G·(L + |t*|)`: one f32 rounding of an f64 value
 ///   ([`super::refined_t`]);
 /// - `fast`: `2^-24·|t*| + 2^-19·S·G·(L + |t*|)`: Möller–Trumbore in f32, whose error
-///   grows with the distance of the triangle's corner from the origin and its size.
+///   grows with the distance of the triangle's corner from the origin and its size;
+///
+/// each plus 2^-149, f32's spacing below 2^-126, where a rounding's error is no longer
+/// relative (a t of 1e-60 is reported as 0).
 ///
 /// `S`, `G`, `L` are the sliver, grazing and distance factors of [`conditioning`]. `+inf`
 /// for a ray parallel to the plane (no bound).
@@ -143,7 +146,7 @@ pub fn t_bound(precision: Precision, ray: &Ray, tri: &Triangle, t_exact: f64) ->
         Precision::Watertight => 2f64.powi(-49),
         Precision::Fast => 2f64.powi(-19),
     };
-    2f64.powi(-24) * t + k * s * g * (l + t)
+    2f64.powi(-24) * t + k * s * g * (l + t) + 2f64.powi(-149)
 }
 
 /// The written bound on `|u - u*|` and `|v - v*|` (absolute; u, v are barycentrics) for

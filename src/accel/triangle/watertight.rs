@@ -206,17 +206,22 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
     }
 }
 
-/// Whether the paper's test of a lane stayed in f32's range: its t finite, and its t
-/// numerator `tt` and determinant `det` normal numbers. Where they did not (an edge
-/// function times a depth past f32's largest; a determinant so small that its reciprocal
-/// overflows, or subnormal, its edge functions rounded to a few bits; a numerator that
-/// underflowed, which turned the t of a plane 1e-18 behind a ray origin into `-0`, a hit at
-/// `tmin = 0` that the trees' boxes then culled), the lane is decided again by
-/// [`rescaled_lane`]. A numerator of exactly 0 (the origin in the triangle's plane) is
-/// decided again too, to the same t.
+/// Whether the paper's test of a lane stayed in f32's range: its t, t numerator `tt` and
+/// determinant `det` normal numbers (finite, and not below 2^-126 in magnitude). Where they
+/// were not, the lane is decided again by [`rescaled_lane`]: an edge function times a depth
+/// past f32's largest; a determinant that overflowed (`t = tt · 0 = -0` for a plane behind
+/// the origin, a hit at `tmin = 0`), or so small that its edge functions kept a few bits;
+/// a numerator or a t that underflowed (a grid 1e-18 across, 1e-18 behind the origin, was
+/// hit at `t = -0`, and the trees' boxes then culled what `brute` found). A numerator of
+/// 0 is decided again too: an underflow, or the origin in the triangle's plane, which keeps
+/// its t (nothing underflowed, so the scaled operations give the same bits).
 #[inline(always)]
 fn in_range(t: f32, tt: f32, det: f32) -> bool {
-    t.is_finite() && tt.abs().min(det.abs()) >= f32::MIN_POSITIVE
+    t.is_finite()
+        && det.is_finite()
+        && t.abs() >= f32::MIN_POSITIVE
+        && tt.abs() >= f32::MIN_POSITIVE
+        && det.abs() >= f32::MIN_POSITIVE
 }
 
 /// The edge functions `U, V, W` of one lane from its sheared coordinates across the ray
@@ -236,16 +241,20 @@ fn edges_inside([[ax, ay], [bx, by], [cx, cy]]: [[f32; 2]; 3]) -> Option<(f32, f
     inside.then_some((u, v, w))
 }
 
-/// The paper's test on one triangle whose f32 products left f32's range, from its vertices
+/// The paper's test on one triangle whose f32 products left f32's normal range
+/// (`in_range`), from its vertices
 /// relative to the ray origin (`rel[i]` in the ray's order `kx, ky, kz`): the sheared
 /// coordinates are computed as the test computes them, then the six across the ray are
-/// scaled by the power of two that brings their largest into [1, 2), and the three depths
-/// by another. Scaling by a power of two is exact, and every later step is the same f32
-/// operation on values scaled by powers of two (the edge functions and the determinant by
-/// the square of the first, the t numerator by that times the second), so the decision
+/// scaled by the power of two that brings their largest into [1, 2), the three depths by
+/// another and the shear's `sz` by a third. Scaling by a power of two is exact, and every
+/// later step is the same f32 operation on values scaled by powers of two (the edge
+/// functions and the determinant by the square of the first, the t numerator by that times
+/// the second and third), so the decision
 /// and (u, v) are those of f32 arithmetic without a limit on the exponent, and t is scaled
-/// back exactly: a 2e13-unit ground quad, a cube of half-side 1e13 seen from inside and a
-/// triangle of area 1e-40 are hit as smaller ones are. Shared edges stay watertight: an
+/// back exactly unless it is below 2^-126 (then rounded, and away from zero to the
+/// smallest subnormal rather than to a zero): a 2e13-unit ground quad, a cube of half-side
+/// 1e13 seen from inside, a triangle of area 1e-40 and a grid 1e-18 across at the origin
+/// are hit as unit ones are. Shared edges stay watertight: an
 /// edge function is the same value scaled, so its sign is the one its neighbour, tested
 /// unscaled, finds. Every core calls this one function for such lanes (cold, out of the
 /// kernels), so they stay bit-identical. `None`: a miss (outside, a zero determinant, or
@@ -263,8 +272,12 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
     };
     let e_xy = exponent(&mut across.iter().flatten().copied())?;
     let e_z = exponent(&mut rel.iter().map(|p| p[2])).unwrap_or(0);
+    // `sz` (1 / the direction's largest component) too: beyond 8.5e37, `sz · a_z` was
+    // subnormal.
+    let e_s = exponent(&mut std::iter::once(sz)).unwrap_or(0);
     // x · 2^k, exact in f64 and then in f32 unless it falls below f32's normal range.
     let scale = |x: f32, k: i32| (f64::from(x) * 2f64.powi(k)) as f32;
+    let sz = scale(sz, -e_s);
     let [[ax, ay], [bx, by], [cx, cy]] = across.map(|p| p.map(|x| scale(x, -e_xy)));
     let (a_z, b_z, c_z) = (
         scale(rel[0][2], -e_z),
@@ -278,11 +291,12 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
     }
     let tt = u * (sz * a_z) + v * (sz * b_z) + w * (sz * c_z);
     let rcp = 1.0 / det;
-    // t scales as the depths do; one that would round to a zero keeps its sign as the
-    // smallest subnormal, so that a plane just behind the origin is not hit at `tmin = 0`
-    // (f32 without a limit on the exponent has no zero there either).
+    // t scales as the depths do; one that would round to a zero is rounded away from it,
+    // to the smallest subnormal of its sign, so that a plane just behind the origin is not
+    // hit at `tmin = 0` (f32 without a limit on the exponent has no zero there either).
+    // This is the decision t: the reported one (`refined_t`) is rounded to nearest, +0.
     let q = tt * rcp;
-    let t = match scale(q, e_z) {
+    let t = match scale(q, e_z + e_s) {
         t if t == 0.0 && q != 0.0 => f32::from_bits(1).copysign(q),
         t => t,
     };
@@ -294,8 +308,8 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
 }
 
 /// The lanes of `bad` decided again by [`rescaled_lane`]: their paper t (`+inf` for a
-/// miss), barycentrics and validity, merged into the others'. Cold: only lanes whose
-/// products left f32's range come here.
+/// miss), barycentrics and validity, merged into the others'. Cold: only lanes that left
+/// f32's normal range come here (and those of rays that start in a triangle's plane).
 #[cold]
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
@@ -334,8 +348,8 @@ fn rescaled8<S: Simd>(
 }
 
 /// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` that
-/// left f32's range (`in_range`: t not finite, or its numerator `tt` or determinant `det`
-/// not normal) decided again by [`rescaled_lane`] (the scalar test's rule, lane for
+/// left f32's range (`in_range`: t, its numerator `tt` or the determinant `det` not a
+/// normal number) decided again by [`rescaled_lane`] (the scalar test's rule, lane for
 /// lane); shared by the layer's 8-triangle test and DACRT's 8-ray leaf test. `rel` gives
 /// the vertices relative to the origin, asked for only then (a closure rather than a
 /// reference: with a reference, `mbvh8` and `dacrt` ran 3% more instructions by
@@ -353,12 +367,14 @@ pub fn in_range8<S: Simd>(
     bv: S::F8,
     valid: S::M8,
 ) -> (S::F8, S::F8, S::F8, S::M8) {
-    // t − t is 0 exactly where t is finite (NaN for ±inf and NaN): one operation fewer
-    // than two bounds, on the kernels' hot path.
-    #[allow(clippy::eq_op)] // t − t is meant: 0, or NaN where t is not finite.
-    let finite = (t - t).eq(s.splat_f8(0.0));
-    let normal = tt.abs().min(det.abs()).ge(s.splat_f8(f32::MIN_POSITIVE));
-    let bad = inside.andnot(finite & normal);
+    // `in_range` on 8 lanes. With the x86 rules `a.min(b)` and `a.max(b)` are `b` where
+    // either is NaN, so t, which is NaN wherever tt or det is, comes second in both: a NaN
+    // fails both bounds. (An infinite det makes t ±0 or NaN, which fail too.)
+    let (t_abs, det_abs) = (t.abs(), det.abs());
+    let least = tt.abs().min(det_abs).min(t_abs);
+    let most = det_abs.max(t_abs);
+    let normal = least.ge(s.splat_f8(f32::MIN_POSITIVE)) & most.le(s.splat_f8(f32::MAX));
+    let bad = inside.andnot(normal);
     if bad.none() {
         return (t, bu, bv, valid);
     }
@@ -384,7 +400,8 @@ impl Watertight {
         if !in_range(t, tt, det) {
             return rescaled_lane(rel, r.shear).filter(|h| h.t >= r.tmin && h.t <= tmax);
         }
-        (det != 0.0 && t >= r.tmin && t <= tmax).then_some(TriHit {
+        // (`in_range` holds, so det is not 0.)
+        (t >= r.tmin && t <= tmax).then_some(TriHit {
             t,
             u: v * rcp,
             v: w * rcp,
@@ -461,7 +478,8 @@ impl TriTest for Watertight {
             t,
             v * rcp,
             w * rcp,
-            inside & det.ne(zero),
+            // Lanes that `in_range` passes have a normal det; the others are decided again.
+            inside,
         );
         // The decision t (`lift_t`): unchanged but for slivers and hits on a box's plane.
         let hit = valid & t.ge(r.tmin) & t.le(tmax);
