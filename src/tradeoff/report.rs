@@ -274,9 +274,32 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
             .draw_series(front.iter().map(|r| {
                 EmptyElement::at((r.seconds, r.errors.rmse))
                     + Circle::new((0, 0), 8, BLACK.stroke_width(2))
-                    + Text::new(r.setting.clone(), (10, -16), ("sans-serif", 13))
             }))
             .map_err(|x| e(&x))?;
+        // The front's labels, each placed beside its point where it covers no other label
+        // and no other point of the front (rungs crowd where a setting barely changes the
+        // time: bounces=4 and spp=8 fell on one another).
+        let font = TextStyle::from(("sans-serif", 13).into_font());
+        let points: Vec<(i32, i32)> = front
+            .iter()
+            .map(|r| chart.backend_coord(&(r.seconds, r.errors.rmse)))
+            .collect();
+        let sizes = front
+            .iter()
+            .map(|r| root.estimate_text_size(&r.setting, &font))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(|x| e(&x))?;
+        let (xr, yr) = chart.plotting_area().get_pixel_range();
+        let area = Rect {
+            x: xr.start,
+            y: yr.start,
+            w: xr.end - xr.start,
+            h: yr.end - yr.start,
+        };
+        for (r, at) in front.iter().zip(place_labels(&points, &sizes, area)) {
+            root.draw(&Text::new(r.setting.clone(), (at.x, at.y), font.clone()))
+                .map_err(|x| e(&x))?;
+        }
         chart
             .configure_series_labels()
             .label_font(("sans-serif", 14))
@@ -288,6 +311,77 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
         root.present().map_err(|x| e(&x))?;
     }
     encode_rgb8(&rgb, w, h)
+}
+
+/// A rectangle of pixels: its top-left corner and its size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Rect {
+    x: i32,
+    y: i32,
+    w: i32,
+    h: i32,
+}
+
+impl Rect {
+    /// The area `self` shares with `o`, in square pixels.
+    fn overlap(&self, o: &Rect) -> i64 {
+        let w = (self.x + self.w).min(o.x + o.w) - self.x.max(o.x);
+        let h = (self.y + self.h).min(o.y + o.h) - self.y.max(o.y);
+        i64::from(w.max(0)) * i64::from(h.max(0))
+    }
+}
+
+/// Where the labels of `points` (pixels; `sizes[i]` is label `i`'s width and height) go:
+/// each at the first of eight places around its point (right and above first, as before)
+/// that covers no label placed before it, no marker of another point (a circle of radius
+/// 8) and nothing outside `area`; where none is free, the place that covers least. Greedy,
+/// in the points' order: a front has a few dozen rungs at most.
+fn place_labels(points: &[(i32, i32)], sizes: &[(u32, u32)], area: Rect) -> Vec<Rect> {
+    const GAP: i32 = 10;
+    let markers: Vec<Rect> = points
+        .iter()
+        .map(|&(x, y)| Rect {
+            x: x - 8,
+            y: y - 8,
+            w: 17,
+            h: 17,
+        })
+        .collect();
+    let mut placed: Vec<Rect> = Vec::with_capacity(points.len());
+    for (i, (&(px, py), &(w, h))) in points.iter().zip(sizes).enumerate() {
+        let (w, h) = (w as i32, h as i32);
+        let candidates = [
+            (px + GAP, py - GAP - h),
+            (px + GAP, py + GAP),
+            (px - GAP - w, py - GAP - h),
+            (px - GAP - w, py + GAP),
+            (px - w / 2, py - GAP - h - 4),
+            (px - w / 2, py + GAP + 4),
+            (px + GAP + 4, py - h / 2),
+            (px - GAP - 4 - w, py - h / 2),
+        ];
+        let cost = |r: &Rect| {
+            let inside = r.overlap(&area);
+            let outside = i64::from(r.w) * i64::from(r.h) - inside;
+            let labels: i64 = placed.iter().map(|p| p.overlap(r)).sum();
+            let others: i64 = markers
+                .iter()
+                .enumerate()
+                .filter(|&(j, _)| j != i)
+                .map(|(_, m)| m.overlap(r))
+                .sum();
+            // Outside the plot is worse than over a label, which is worse than over a
+            // marker.
+            4 * outside + 2 * labels + others
+        };
+        let best = candidates
+            .iter()
+            .map(|&(x, y)| Rect { x, y, w, h })
+            .min_by_key(cost)
+            .expect("eight candidates");
+        placed.push(best);
+    }
+    placed
 }
 
 /// An 8-bit RGB PNG of `rgb` (already display-ready: no colour conversion), as plotters'
@@ -314,6 +408,42 @@ mod tests {
     use super::*;
     use crate::accel::{BuildQuality, Precision};
     use crate::tradeoff::{Errors, Reference, Row};
+
+    #[test]
+    fn crowded_labels_are_placed_apart() {
+        // Three rungs within a few pixels of each other (as bounces=4 and spp=8 fell), one
+        // in a corner, one alone.
+        let points = [(400, 300), (404, 301), (398, 296), (12, 12), (700, 500)];
+        let sizes = [(70, 14), (50, 14), (90, 14), (40, 14), (40, 14)];
+        let area = Rect {
+            x: 0,
+            y: 0,
+            w: 800,
+            h: 600,
+        };
+        let placed = place_labels(&points, &sizes, area);
+        for (i, a) in placed.iter().enumerate() {
+            assert_eq!((a.w, a.h), (sizes[i].0 as i32, sizes[i].1 as i32));
+            assert_eq!(
+                a.overlap(&area),
+                i64::from(a.w * a.h),
+                "label {i} leaves the plot"
+            );
+            for (j, b) in placed.iter().enumerate().skip(i + 1) {
+                assert_eq!(a.overlap(b), 0, "labels {i} and {j} overlap: {a:?} {b:?}");
+            }
+            // Beside its own point: within 30 pixels of it.
+            let (px, py) = points[i];
+            let dx = (px - a.x).max(a.x + a.w - px).max(0);
+            let dy = (py - a.y).max(a.y + a.h - py).max(0);
+            assert!(
+                dx.min(dy) <= 30 + a.w.max(a.h),
+                "label {i} far from its point: {a:?}"
+            );
+        }
+        // A lone point keeps the old place: right of it and above.
+        assert_eq!((placed[4].x, placed[4].y), (710, 500 - 10 - 14));
+    }
 
     fn report() -> Report {
         let row = |axis, setting: &str, seconds: f64, rmse: f64, pareto| Row {
