@@ -284,9 +284,15 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
             .iter()
             .map(|r| chart.backend_coord(&(r.seconds, r.errors.rmse)))
             .collect();
+        // The estimate's height (10 pixels at size 13) starts at the anchor, but the glyphs
+        // rise about 3 pixels above it: each box is padded to hold the ink, and the text
+        // drawn 3 pixels below the box's top.
         let sizes = front
             .iter()
-            .map(|r| root.estimate_text_size(&r.setting, &font))
+            .map(|r| {
+                root.estimate_text_size(&r.setting, &font)
+                    .map(|(w, h)| (w, h + LABEL_RISE + 1))
+            })
             .collect::<Result<Vec<_>, _>>()
             .map_err(|x| e(&x))?;
         let (xr, yr) = chart.plotting_area().get_pixel_range();
@@ -297,8 +303,12 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
             h: yr.end - yr.start,
         };
         for (r, at) in front.iter().zip(place_labels(&points, &sizes, area)) {
-            root.draw(&Text::new(r.setting.clone(), (at.x, at.y), font.clone()))
-                .map_err(|x| e(&x))?;
+            root.draw(&Text::new(
+                r.setting.clone(),
+                (at.x, at.y + LABEL_RISE as i32),
+                font.clone(),
+            ))
+            .map_err(|x| e(&x))?;
         }
         chart
             .configure_series_labels()
@@ -312,6 +322,9 @@ pub fn plot(report: &Report) -> Result<Vec<u8>, TradeoffError> {
     }
     encode_rgb8(&rgb, w, h)
 }
+
+/// How far a label's glyphs rise above the point plotters anchors the text at, in pixels.
+const LABEL_RISE: u32 = 3;
 
 /// A rectangle of pixels: its top-left corner and its size.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -334,17 +347,19 @@ impl Rect {
 /// Where the labels of `points` (pixels; `sizes[i]` is label `i`'s width and height) go:
 /// each at the first of eight places around its point (right and above first, as before)
 /// that covers no label placed before it, no marker of another point (a circle of radius
-/// 8) and nothing outside `area`; where none is free, the place that covers least. Greedy,
-/// in the points' order: a front has a few dozen rungs at most.
+/// 8 and a 2-pixel stroke) and nothing outside `area`; where none is free, the place that
+/// covers least, by area (a pixel outside the plot weighs 4, over a label 2, over a marker
+/// 1). Greedy, in the points' order: a front has a few dozen rungs at most. Other rungs'
+/// dots, the front's stairs and the legend are not avoided.
 fn place_labels(points: &[(i32, i32)], sizes: &[(u32, u32)], area: Rect) -> Vec<Rect> {
     const GAP: i32 = 10;
     let markers: Vec<Rect> = points
         .iter()
         .map(|&(x, y)| Rect {
-            x: x - 8,
-            y: y - 8,
-            w: 17,
-            h: 17,
+            x: x - 9,
+            y: y - 9,
+            w: 19,
+            h: 19,
         })
         .collect();
     let mut placed: Vec<Rect> = Vec::with_capacity(points.len());
@@ -370,8 +385,6 @@ fn place_labels(points: &[(i32, i32)], sizes: &[(u32, u32)], area: Rect) -> Vec<
                 .filter(|&(j, _)| j != i)
                 .map(|(_, m)| m.overlap(r))
                 .sum();
-            // Outside the plot is worse than over a label, which is worse than over a
-            // marker.
             4 * outside + 2 * labels + others
         };
         let best = candidates
@@ -422,6 +435,12 @@ mod tests {
             h: 600,
         };
         let placed = place_labels(&points, &sizes, area);
+        let marker = |(x, y): (i32, i32)| Rect {
+            x: x - 9,
+            y: y - 9,
+            w: 19,
+            h: 19,
+        };
         for (i, a) in placed.iter().enumerate() {
             assert_eq!((a.w, a.h), (sizes[i].0 as i32, sizes[i].1 as i32));
             assert_eq!(
@@ -432,17 +451,29 @@ mod tests {
             for (j, b) in placed.iter().enumerate().skip(i + 1) {
                 assert_eq!(a.overlap(b), 0, "labels {i} and {j} overlap: {a:?} {b:?}");
             }
-            // Beside its own point: within 30 pixels of it.
+            for (j, &p) in points.iter().enumerate().filter(|&(j, _)| j != i) {
+                assert_eq!(
+                    a.overlap(&marker(p)),
+                    0,
+                    "label {i} covers point {j}: {a:?}"
+                );
+            }
+            // Beside its own point: the gap from the point to the box at most 14 pixels
+            // (the farthest of the eight places).
             let (px, py) = points[i];
-            let dx = (px - a.x).max(a.x + a.w - px).max(0);
-            let dy = (py - a.y).max(a.y + a.h - py).max(0);
-            assert!(
-                dx.min(dy) <= 30 + a.w.max(a.h),
-                "label {i} far from its point: {a:?}"
-            );
+            let gx = (a.x - px).max(px - (a.x + a.w)).max(0);
+            let gy = (a.y - py).max(py - (a.y + a.h)).max(0);
+            assert!(gx.max(gy) <= 14, "label {i} far from its point: {a:?}");
         }
         // A lone point keeps the old place: right of it and above.
         assert_eq!((placed[4].x, placed[4].y), (710, 500 - 10 - 14));
+        // A marker where the first place would be moves the label: alone, point 0's label
+        // goes right of it and above; with point 1 there, elsewhere.
+        let alone = place_labels(&[(100, 100)], &[(60, 14)], area);
+        assert_eq!((alone[0].x, alone[0].y), (110, 76));
+        let beside = place_labels(&[(100, 100), (140, 84)], &[(60, 14), (20, 14)], area);
+        assert_ne!((beside[0].x, beside[0].y), (110, 76));
+        assert_eq!(beside[0].overlap(&marker((140, 84))), 0);
     }
 
     fn report() -> Report {

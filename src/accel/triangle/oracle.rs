@@ -187,7 +187,9 @@ pub fn oracle_t_error(ray: &Ray, tri: &Triangle) -> f64 {
 pub fn order_t_bound(precision: Precision, ray: &Ray, tri: &Triangle, t_exact: f64) -> f64 {
     match precision {
         Precision::Fast => t_bound(precision, ray, tri, t_exact),
-        Precision::Watertight => sheared_t_error(ray, tri, 2f64.powi(-24), 2.0),
+        // Plus f32's spacing below 2^-126: a decision t that would round to 0 is rounded
+        // away from it (`watertight::rescaled_lane`).
+        Precision::Watertight => sheared_t_error(ray, tri, 2f64.powi(-24), 2.0) + 2f64.powi(-149),
     }
 }
 

@@ -249,14 +249,15 @@ fn edges_inside([[ax, ay], [bx, by], [cx, cy]]: [[f32; 2]; 3]) -> Option<(f32, f
 /// another and the shear's `sz` by a third. Scaling by a power of two is exact, and every
 /// later step is the same f32 operation on values scaled by powers of two (the edge
 /// functions and the determinant by the square of the first, the t numerator by that times
-/// the second and third), so the decision
-/// and (u, v) are those of f32 arithmetic without a limit on the exponent, and t is scaled
+/// the second and third), so the decision and (u, v) are those of f32 arithmetic without a
+/// limit on the exponent (unless a value is more than 2^126 below the largest of its kind,
+/// or `sz` is itself subnormal: those were rounded before the scaling), and t is scaled
 /// back exactly unless it is below 2^-126 (then rounded, and away from zero to the
 /// smallest subnormal rather than to a zero): a 2e13-unit ground quad, a cube of half-side
 /// 1e13 seen from inside, a triangle of area 1e-40 and a grid 1e-18 across at the origin
-/// are hit as unit ones are. Shared edges stay watertight: an
-/// edge function is the same value scaled, so its sign is the one its neighbour, tested
-/// unscaled, finds. Every core calls this one function for such lanes (cold, out of the
+/// are hit as unit ones are. Shared edges stay watertight: rounding is monotone, so an edge
+/// function, scaled or not, has the exact product's sign or is 0 (recomputed in f64), and
+/// its neighbour, tested unscaled, finds the same sign. Every core calls this one function for such lanes (cold, out of the
 /// kernels), so they stay bit-identical. `None`: a miss (outside, a zero determinant, or
 /// a t beyond f32's range).
 #[cold]
@@ -272,8 +273,9 @@ pub(super) fn rescaled_lane(rel: [[f32; 3]; 3], shear: [f32; 3]) -> Option<TriHi
     };
     let e_xy = exponent(&mut across.iter().flatten().copied())?;
     let e_z = exponent(&mut rel.iter().map(|p| p[2])).unwrap_or(0);
-    // `sz` (1 / the direction's largest component) too: beyond 8.5e37, `sz · a_z` was
-    // subnormal.
+    // `sz` (1 / the direction's largest component) too, so that `sz · a_z` stays normal
+    // for a small `sz` (a direction of 1e30) times a depth far below the largest; beyond
+    // 8.5e37 `sz` is itself subnormal, and the bits it lost stay lost.
     let e_s = exponent(&mut std::iter::once(sz)).unwrap_or(0);
     // x · 2^k, exact in f64 and then in f32 unless it falls below f32's normal range.
     let scale = |x: f32, k: i32| (f64::from(x) * 2f64.powi(k)) as f32;
