@@ -29,6 +29,14 @@ fn kinds() -> Vec<AccelKind> {
         .collect()
 }
 
+/// [`kinds`] without `embree`: the cores that keep `watertight`'s rules bit for bit.
+fn watertight_cores() -> Vec<AccelKind> {
+    kinds()
+        .into_iter()
+        .filter(|k| *k != AccelKind::Embree)
+        .collect()
+}
+
 /// Closest (or any) hits of `rays` on `tris` by `kind`, built with `quality`.
 fn trace_q(
     kind: AccelKind,
@@ -1221,7 +1229,6 @@ fn scenes_with_non_finite_triangles_do_not_crash_the_cores() {
 #[test]
 fn triangles_whose_products_leave_f32s_range_are_still_hit() {
     let precision = Precision::Watertight;
-    let watertight_cores = || kinds().into_iter().filter(|k| *k != AccelKind::Embree);
     let same_everywhere = |tris: &[Triangle], rays: &[Ray]| -> Vec<Hit> {
         let reference = trace(AccelKind::Brute, precision, tris, rays);
         for kind in watertight_cores() {
@@ -1318,9 +1325,8 @@ fn triangles_whose_products_leave_f32s_range_are_still_hit() {
 /// 1e30 triangles that shares a vertex with them. The watertight test's t numerator, the
 /// extent across the ray squared times the depth along it, is ~1e-54 there, below f32's
 /// range: it underflowed to ±0, so a grid 1e-18 *behind* the origin was hit at t = 0 by
-/// `brute` while the trees and DACRT, whose boxes lay behind the ray, missed it (about one
-/// ray in eight; session 30's batch-dependent DACRT `t = 0` hit beside such a grid likely
-/// came from it). Such lanes are decided again with their coordinates scaled, as those whose
+/// `brute` while the trees and DACRT, whose boxes lay behind the ray, missed it (session 30's
+/// batch-dependent DACRT `t = 0` hit beside such a grid likely came from it). Such lanes are decided again with their coordinates scaled, as those whose
 /// products overflow are. Last, planes 2^-149 (the smallest subnormal) before and behind
 /// the origin: the t numerator underflows to ±0 in the paper's test; the one behind is
 /// missed, the one before hit at t = +0.
@@ -1341,10 +1347,7 @@ fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
         }
         tris
     };
-    let watertight_cores: Vec<AccelKind> = kinds()
-        .into_iter()
-        .filter(|k| *k != AccelKind::Embree)
-        .collect();
+    let watertight_cores = watertight_cores();
     let mut rng = Rng(0x5ca1e);
     let mut small_grid_hits = 0;
     let mut rays_traced = 0;
@@ -1432,10 +1435,7 @@ fn triangles_whose_products_underflow_are_decided_as_larger_ones() {
 /// decided again scaled.
 #[test]
 fn clusters_at_every_scale_keep_every_core_exact() {
-    let watertight_cores: Vec<AccelKind> = kinds()
-        .into_iter()
-        .filter(|k| *k != AccelKind::Embree)
-        .collect();
+    let watertight_cores = watertight_cores();
     let mut rng = Rng(0x5ca1e5);
     let pow10 =
         |rng: &mut Rng, lo: f32, hi: f32| 10f64.powf(f64::from(lo + (hi - lo) * rng.unit()));

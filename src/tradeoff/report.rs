@@ -336,6 +336,21 @@ struct Rect {
 }
 
 impl Rect {
+    /// The box a front marker at `(x, y)` covers: a circle of radius 8 with a 2-pixel stroke.
+    fn marker((x, y): (i32, i32)) -> Rect {
+        Rect {
+            x: x - 9,
+            y: y - 9,
+            w: 19,
+            h: 19,
+        }
+    }
+
+    /// Its area, in square pixels.
+    fn area(&self) -> i64 {
+        i64::from(self.w) * i64::from(self.h)
+    }
+
     /// The area `self` shares with `o`, in square pixels.
     fn overlap(&self, o: &Rect) -> i64 {
         let w = (self.x + self.w).min(o.x + o.w) - self.x.max(o.x);
@@ -353,15 +368,7 @@ impl Rect {
 /// dots, the front's stairs and the legend are not avoided.
 fn place_labels(points: &[(i32, i32)], sizes: &[(u32, u32)], area: Rect) -> Vec<Rect> {
     const GAP: i32 = 10;
-    let markers: Vec<Rect> = points
-        .iter()
-        .map(|&(x, y)| Rect {
-            x: x - 9,
-            y: y - 9,
-            w: 19,
-            h: 19,
-        })
-        .collect();
+    let markers: Vec<Rect> = points.iter().copied().map(Rect::marker).collect();
     let mut placed: Vec<Rect> = Vec::with_capacity(points.len());
     for (i, (&(px, py), &(w, h))) in points.iter().zip(sizes).enumerate() {
         let (w, h) = (w as i32, h as i32);
@@ -376,8 +383,7 @@ fn place_labels(points: &[(i32, i32)], sizes: &[(u32, u32)], area: Rect) -> Vec<
             (px - GAP - 4 - w, py - h / 2),
         ];
         let cost = |r: &Rect| {
-            let inside = r.overlap(&area);
-            let outside = i64::from(r.w) * i64::from(r.h) - inside;
+            let outside = r.area() - r.overlap(&area);
             let labels: i64 = placed.iter().map(|p| p.overlap(r)).sum();
             let others: i64 = markers
                 .iter()
@@ -435,25 +441,15 @@ mod tests {
             h: 600,
         };
         let placed = place_labels(&points, &sizes, area);
-        let marker = |(x, y): (i32, i32)| Rect {
-            x: x - 9,
-            y: y - 9,
-            w: 19,
-            h: 19,
-        };
         for (i, a) in placed.iter().enumerate() {
             assert_eq!((a.w, a.h), (sizes[i].0 as i32, sizes[i].1 as i32));
-            assert_eq!(
-                a.overlap(&area),
-                i64::from(a.w * a.h),
-                "label {i} leaves the plot"
-            );
+            assert_eq!(a.overlap(&area), a.area(), "label {i} leaves the plot");
             for (j, b) in placed.iter().enumerate().skip(i + 1) {
                 assert_eq!(a.overlap(b), 0, "labels {i} and {j} overlap: {a:?} {b:?}");
             }
             for (j, &p) in points.iter().enumerate().filter(|&(j, _)| j != i) {
                 assert_eq!(
-                    a.overlap(&marker(p)),
+                    a.overlap(&Rect::marker(p)),
                     0,
                     "label {i} covers point {j}: {a:?}"
                 );
@@ -473,7 +469,7 @@ mod tests {
         assert_eq!((alone[0].x, alone[0].y), (110, 76));
         let beside = place_labels(&[(100, 100), (140, 84)], &[(60, 14), (20, 14)], area);
         assert_ne!((beside[0].x, beside[0].y), (110, 76));
-        assert_eq!(beside[0].overlap(&marker((140, 84))), 0);
+        assert_eq!(beside[0].overlap(&Rect::marker((140, 84))), 0);
     }
 
     fn report() -> Report {

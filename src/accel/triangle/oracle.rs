@@ -146,8 +146,12 @@ pub fn t_bound(precision: Precision, ray: &Ray, tri: &Triangle, t_exact: f64) ->
         Precision::Watertight => 2f64.powi(-49),
         Precision::Fast => 2f64.powi(-19),
     };
-    2f64.powi(-24) * t + k * s * g * (l + t) + 2f64.powi(-149)
+    2f64.powi(-24) * t + k * s * g * (l + t) + SUBNORMAL_SPACING
 }
+
+/// f32's spacing below 2^-126 (its smallest subnormal), where a rounding's error is
+/// absolute: both t bounds add it.
+const SUBNORMAL_SPACING: f64 = f32::from_bits(1) as f64;
 
 /// The written bound on `|u - u*|` and `|v - v*|` (absolute; u, v are barycentrics) for
 /// either precision: `2^-19·G·S·L·|d| / min(|e1|, |e2|)`, which for a fat triangle seen
@@ -189,7 +193,7 @@ pub fn order_t_bound(precision: Precision, ray: &Ray, tri: &Triangle, t_exact: f
         Precision::Fast => t_bound(precision, ray, tri, t_exact),
         // Plus f32's spacing below 2^-126: a decision t that would round to 0 is rounded
         // away from it (`watertight::rescaled_lane`).
-        Precision::Watertight => sheared_t_error(ray, tri, 2f64.powi(-24), 2.0) + 2f64.powi(-149),
+        Precision::Watertight => sheared_t_error(ray, tri, 2f64.powi(-24), 2.0) + SUBNORMAL_SPACING,
     }
 }
 

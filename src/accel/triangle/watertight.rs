@@ -217,11 +217,7 @@ fn fallback8(zero: u32, xy: [[f32; 8]; 6], uvw: &mut [[f32; 8]; 3]) {
 /// its t (nothing underflowed, so the scaled operations give the same bits).
 #[inline(always)]
 fn in_range(t: f32, tt: f32, det: f32) -> bool {
-    t.is_finite()
-        && det.is_finite()
-        && t.abs() >= f32::MIN_POSITIVE
-        && tt.abs() >= f32::MIN_POSITIVE
-        && det.abs() >= f32::MIN_POSITIVE
+    t.is_normal() && tt.is_normal() && det.is_normal()
 }
 
 /// The edge functions `U, V, W` of one lane from its sheared coordinates across the ray
