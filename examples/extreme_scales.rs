@@ -4,7 +4,9 @@
 //! from in and around them with directions of 1e-30 to 1e30 (a third aimed at a
 //! triangle). Per scene it counts, against `brute`: each core's closest hits that differ
 //! in any bit, `any` answers that differ on hit or miss, and `brute`'s hits outside the
-//! f64 oracle's t bound (t above 1e-37) or on a plane the ray runs along.
+//! f64 oracle's t bound (t above 1e-37) or, where the ray runs along the triangle's plane
+//! in f64, off its triangle (those on it are counted apart: `fast` hits a triangle below
+//! f64's resolution at its distance at a vertex).
 //! `tests/extremes.rs`'s `clusters_at_every_scale_keep_every_core_exact` is its fixed-seed,
 //! smaller twin.
 //!
@@ -12,7 +14,9 @@
 //! cargo run --release --features embree --example extreme_scales -- SEED SCENES PRECISION
 //! ```
 
-use rayd::accel::triangle::oracle::{oracle_t_error, order_t_bound, t_bound};
+use rayd::accel::triangle::oracle::{
+    oracle_t_error, order_t_bound, t_bound, unresolved_hit_plausible,
+};
 use rayd::accel::triangle::oracle_line_f64;
 use rayd::accel::{build, AccelKind, BuildOptions, BuildQuality, Precision, Query};
 use rayd::geometry::{Hit, Ray, Triangle};
@@ -130,7 +134,7 @@ fn main() {
     };
     let mut rng = Rng(seed);
     let mut bad: BTreeMap<String, usize> = BTreeMap::new();
-    let (mut rays_traced, mut hits) = (0, 0);
+    let (mut rays_traced, mut hits, mut unresolved) = (0, 0, 0);
     for _ in 0..scenes {
         let (tris, rays) = scene(&mut rng);
         if rays.is_empty() {
@@ -142,7 +146,15 @@ fn main() {
             hits += 1;
             let tri = &tris[h.prim as usize];
             let Some(line) = oracle_line_f64(r, tri) else {
-                *bad.entry("brute on a parallel plane".into()).or_default() += 1;
+                // The triangle is below f64's resolution at its distance from the origin
+                // (1e-35 across, 0.1 away): `fast` hits it at a vertex where the ray passes
+                // within rounding of it (`oracle::unresolved_hit_plausible`).
+                if unresolved_hit_plausible(r, tri, h.t) {
+                    unresolved += 1;
+                } else {
+                    *bad.entry("brute off a plane parallel in f64".into())
+                        .or_default() += 1;
+                }
                 continue;
             };
             let mut tol = t_bound(p, r, tri, line.t);
@@ -177,7 +189,8 @@ fn main() {
         }
     }
     println!(
-        "{} seed {seed}: rays {rays_traced} hits {hits} disagreements {bad:?}",
+        "{} seed {seed}: rays {rays_traced} hits {hits} (below f64's resolution {unresolved}) \
+         disagreements {bad:?}",
         p.name()
     );
 }

@@ -5,7 +5,7 @@ A and B run alternately (`ab_pairs.py`), pinned to one core, and the median of t
 per-pair ratios B/A is reported with its quartiles.
 
     scripts/ab_bench.py A B [--pairs 16] [--scene S] [--accel mbvh8] [--sets primary,diffuse2]
-        [--cpu 1] [--width 512 --height 384] [--threads 1]
+        [--cpu 1] [--width 512 --height 384] [--threads 1] [--precision watertight]
 """
 import re
 import statistics
@@ -19,6 +19,7 @@ def main():
     ap.add_argument("--scene", default="../shared/scenes/dragon-100k.from-ply.glb")
     ap.add_argument("--accel", default="mbvh8")
     ap.add_argument("--build", default="sah")
+    ap.add_argument("--precision", default="watertight")
     ap.add_argument("--sets", default="primary,diffuse2")
     ap.add_argument("--cpu", default="1", help="core to pin to (taskset -c)")
     ap.add_argument("--threads", default="1")
@@ -28,7 +29,7 @@ def main():
 
     def run(binary):
         cmd = ["taskset", "-c", args.cpu, binary, "bench", args.scene, "--accel", args.accel,
-               "--build", args.build, "--sets", args.sets, "--threads", args.threads,
+               "--build", args.build, "--precision", args.precision, "--sets", args.sets, "--threads", args.threads,
                "--runs", "5", "--width", args.width, "--height", args.height,
                "--reference", args.accel]
         err = subprocess.run(cmd, capture_output=True, text=True, check=True).stderr

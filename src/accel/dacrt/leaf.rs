@@ -15,7 +15,9 @@
 //! scalar test itself. The reported t of a ray's final hit is the layer's
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
-use crate::accel::triangle::{edges8, entry8, in_range8, MollerTrumbore, PreparedRay, TriTest};
+use crate::accel::triangle::{
+    edges8, entry8, in_range8, mt_det_ok8, mt_in_range8, MollerTrumbore, PreparedRay, TriTest,
+};
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
 use crate::simd::{self, FloatV, IntV, Kernel, MaskV, Select, Simd};
@@ -232,23 +234,30 @@ impl LeafTest for Moller {
         let pz = dx * e2y - dy * e2x;
         let (e1x, e1y, e1z) = (c(1, 0), c(1, 1), c(1, 2));
         let det = e1x * px + e1y * py + e1z * pz;
+        let det_ok = mt_det_ok8(s, det);
         let inv = s.splat_f8(1.0) / det;
         let sx = r.org[0] - c(0, 0);
         let sy = r.org[1] - c(0, 1);
         let sz = r.org[2] - c(0, 2);
-        let u = (sx * px + sy * py + sz * pz) * inv;
+        let un = sx * px + sy * py + sz * pz;
+        let u = un * inv;
         let qx = sy * e1z - sz * e1y;
         let qy = sz * e1x - sx * e1z;
         let qz = sx * e1y - sy * e1x;
-        let v = (dx * qx + dy * qy + dz * qz) * inv;
+        let vn = dx * qx + dy * qy + dz * qz;
+        let v = vn * inv;
         let zero = s.splat_f8(0.0);
         let inside = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0));
-        if inside.none() {
+        if det_ok.andnot(inside).all() {
             return Hit8::miss(inside, zero);
         }
-        let t = (e2x * qx + e2y * qy + e2z * qz) * inv;
+        let tn = e2x * qx + e2y * qy + e2z * qz;
+        let t = tn * inv;
+        // The layer's rule for lanes out of f32's range (`mt_in_range8`), lane for lane.
+        let lanes = || ([0, 1, 2].map(|i| [0, 1, 2].map(|k| c(i, k))), r.org, r.dir);
+        let (t, u, v, valid) = mt_in_range8(s, lanes, det_ok, inside, [un, vn, tn], [t, u, v]);
         Hit8 {
-            mask: inside & t.ge(tmin) & t.le(tmax),
+            mask: valid & t.ge(tmin) & t.le(tmax),
             t,
             u,
             v,

@@ -34,7 +34,7 @@ pub mod oracle;
 pub(crate) mod tests;
 mod watertight;
 
-pub use moller::MollerTrumbore;
+pub use moller::{mt_det_ok8, mt_in_range8, MollerTrumbore};
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
 pub use watertight::{edges8, entry8, in_range8, lift_t, refined_t, Watertight};
 
@@ -179,8 +179,9 @@ pub const PAD_ID: u32 = u32::MAX;
 ///
 /// The meaning of `p` depends on the test `T`: [`Watertight`] stores the vertices
 /// `v0, v1, v2`; [`MollerTrumbore`] stores `v0, e1 = v1-v0, e2 = v2-v0` (edges rounded to f32
-/// once, at build time). Padding lanes hold NaN coordinates, which no test ever reports as a
-/// hit, and the id [`PAD_ID`]. 320 bytes, 32-byte aligned (five cache lines).
+/// once, at build time). Padding lanes hold [`TriTest::PAD`] (NaN coordinates, or for
+/// Möller–Trumbore a NaN `v0` with finite edges), which no test ever reports as a hit, and
+/// the id [`PAD_ID`]. 320 bytes, 32-byte aligned (five cache lines).
 #[repr(C, align(32))]
 pub struct Tri8<T> {
     /// Coordinates: `p[i][axis][lane]`.
@@ -219,7 +220,7 @@ impl<T: TriTest> Tri8<T> {
     pub fn pack(tris: &[(u32, Triangle)]) -> Tri8<T> {
         assert!(tris.len() <= 8, "a Tri8 holds at most 8 triangles");
         let mut pack = Tri8 {
-            p: [[[f32::NAN; 8]; 3]; 3],
+            p: T::PAD.map(|point| point.map(|c| [c; 8])),
             ids: [PAD_ID; 8],
             test: PhantomData,
         };
@@ -332,6 +333,10 @@ pub struct TriHit {
 pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     /// The contract's precision this test implements.
     const PRECISION: Precision;
+
+    /// What a padding lane of a [`Tri8`] holds (as [`TriTest::lane_data`] would store it):
+    /// data that no test reports as a hit. NaN unless the test says otherwise.
+    const PAD: [[f32; 3]; 3] = [[f32::NAN; 3]; 3];
 
     /// The three points stored per triangle (see [`Tri8`]).
     fn lane_data(tri: &Triangle) -> [[f32; 3]; 3];

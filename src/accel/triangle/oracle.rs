@@ -94,6 +94,34 @@ pub fn oracle_closest_f64(ray: &Ray, tris: &[Triangle]) -> Option<(u32, OracleHi
     best
 }
 
+/// Whether a `fast` hit at `t` of `ray` on `tri` that [`oracle_line_f64`] cannot place is
+/// plausible. The sheared f64 oracle subtracts the ray origin from each vertex, so a
+/// triangle smaller than f64's resolution at its distance from the origin (1e-35 across,
+/// 0.1 away) becomes one point, its ray "parallel"; Möller–Trumbore keeps the edges apart
+/// (`v1 - v0`, `v2 - v0`, rounded once) and hits such a triangle where the ray passes
+/// within f32's rounding of `org - v0`, at a vertex (and a ray in a triangle's plane, as
+/// f32 rounds it, at its origin). Plausible: the hit's point `o + t·d` (in f64) lies in
+/// the triangle's bounding box grown, per axis, by 2^-20 of the reach (the largest of the
+/// vertices' and the point's distances from the origin: a few of f32's roundings there)
+/// plus `|d|` times [`t_bound`] at `t` (where the plane is not parallel in f64).
+pub fn unresolved_hit_plausible(ray: &Ray, tri: &Triangle, t: f32) -> bool {
+    let f = |a: [f32; 3]| a.map(f64::from);
+    let (o, d, v, t) = (f(ray.org), f(ray.dir), tri.v.map(f), f64::from(t));
+    let tb = t_bound(Precision::Fast, ray, tri, t);
+    let tb = if tb.is_finite() { tb } else { 0.0 };
+    (0..3).all(|k| {
+        let x = o[k] + t * d[k];
+        let reach = v
+            .iter()
+            .map(|p| (p[k] - o[k]).abs())
+            .fold((t * d[k]).abs(), f64::max);
+        let lo = v.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+        let hi = v.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
+        let grow = reach * 2f64.powi(-20) + d[k].abs() * tb;
+        x >= lo - grow && x <= hi + grow
+    })
+}
+
 /// The conditioning of a hit, in f64: `(S, G, L)` with `S = |e1|·|e2| / |n|` (1 for a
 /// right isosceles triangle, huge for a sliver), `G = |n|·|d| / |n·d|` (1 head-on, huge
 /// when grazing) and `L = (|v0 - o| + |e1| + |e2|) / |d|` (how far, in units of t, the
