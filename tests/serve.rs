@@ -1669,7 +1669,8 @@ fn a_second_signal_ends_the_grace_period() {
 
 /// `POST …/frame`: positions and rays in one request answer what a `PUT` of the positions
 /// and a trace of the new version answer, and what `rayd trace` answers on those triangles;
-/// a frame refused for any reason (its positions or its rays) records no version.
+/// a frame refused for its positions records no version, one refused for its rays has
+/// made its version and says which.
 #[test]
 fn a_frame_updates_the_geometry_and_traces_it_in_one_request() {
     let dir = tempfile::tempdir().unwrap();
@@ -1856,6 +1857,101 @@ fn a_frame_updates_the_geometry_and_traces_it_in_one_request() {
     );
     assert_eq!(v2.status, 200);
     assert_eq!(v2.body, std::fs::read(files.join("v2.hit")).unwrap());
+}
+
+/// A frame whose queue filled while its positions arrived is refused before it makes a
+/// version: 503 with `Retry-After`, no version recorded, no `version` in the problem. Its
+/// trace takes its place in the queue before the positions become a version (until
+/// session 36 the version was made and then the trace refused, so that a client that
+/// sent the frame again made another).
+#[test]
+fn a_frame_that_finds_the_queue_full_makes_no_version() {
+    use std::io::{Read, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let s = Server::start(&dir.path().join("data"), &["--max-queued", "1"]);
+    // 40,000 small triangles: `brute` holds the pool for about a second with 40,000 rays.
+    let tris: Vec<Triangle> = (0..40_000)
+        .map(|i| {
+            let (x, y) = ((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
+            Triangle {
+                v: [[x, y, 0.0], [x + 0.005, y, 0.0], [x, y + 0.005, 0.0]],
+            }
+        })
+        .collect();
+    let id = s.upload_tri(&tris)["id"].as_str().unwrap().to_string();
+    let version = || {
+        s.req("GET", &format!("/v1/scenes/{id}"), &[], &[]).json()["version"]
+            .as_i64()
+            .unwrap()
+    };
+    let rays = |n| write_rays(&rays_at([0.0, 0.0, -1.0], [1.0, 1.0, 1.0], n));
+    let holder = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/trace?accel=brute"),
+        &[
+            ("Content-Type", "application/octet-stream"),
+            ("Prefer", "respond-async"),
+        ],
+        &rays(40_000),
+    );
+    assert_eq!(holder.status, 202);
+    let holder = holder.json()["id"].as_str().unwrap().to_string();
+    wait_running(&s, &holder, 30);
+    // The frame's head and half its positions: the queue has room then.
+    let tri1 = write_tri(&tris);
+    let body = [tri1.clone(), rays(100)].concat();
+    let mut c = std::net::TcpStream::connect(&s.addr).unwrap();
+    write!(
+        c,
+        "POST /v1/scenes/{id}/frame HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-rayd-frame\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+        body.len()
+    )
+    .unwrap();
+    c.write_all(&body[..tri1.len() / 2]).unwrap();
+    std::thread::sleep(Duration::from_millis(200));
+    // A render takes the queue's one place behind the long trace.
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/render"),
+        &[("Content-Type", "application/json")],
+        br#"{"width": 8, "height": 8}"#,
+    );
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let render = r.json()["id"].as_str().unwrap().to_string();
+    c.write_all(&body[tri1.len() / 2..]).unwrap();
+    let mut answer = Vec::new();
+    c.read_to_end(&mut answer).unwrap();
+    let answer = String::from_utf8_lossy(&answer).to_string();
+    let still_running =
+        s.req("GET", &format!("/v1/jobs/{holder}"), &[], &[]).json()["state"] == "running";
+    assert!(
+        still_running,
+        "the long trace ended too soon to test anything"
+    );
+    assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
+    assert!(
+        answer.to_ascii_lowercase().contains("retry-after:"),
+        "{answer}"
+    );
+    let problem: serde_json::Value =
+        serde_json::from_str(answer.split("\r\n\r\n").nth(1).unwrap()).unwrap();
+    assert!(problem.get("version").is_none(), "{problem}");
+    assert_eq!(
+        version(),
+        1,
+        "a frame refused for a full queue made a version"
+    );
+    assert_eq!(wait_job(&s, &holder, 60)["state"], "succeeded");
+    assert_eq!(wait_job(&s, &render, 30)["state"], "succeeded");
+    // With room again, the same frame makes version 2.
+    let r = s.req(
+        "POST",
+        &format!("/v1/scenes/{id}/frame"),
+        &[("Content-Type", "application/x-rayd-frame")],
+        &body,
+    );
+    assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
+    assert_eq!(r.header("x-rayd-version"), Some("2"));
 }
 
 /// A scene whose stored file was damaged in place (same size, one byte flipped) is

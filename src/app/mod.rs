@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex};
 
 pub use callbacks::{CallbackFailure, CallbackSender, CallbackView, SendFuture};
 pub use jobs::{JobEvents, JobView};
-pub use scenes::{scene_info, SceneView, TraceIntake, Tri1Body, UploadKind};
+pub use scenes::{scene_info, SceneView, TraceIntake, TracePlace, Tri1Body, UploadKind};
 pub use spec::{FramesSpec, RenderSpec, TraceParams};
 pub use thumbnails::{Thumbnail, THUMBNAIL_HEIGHT, THUMBNAIL_PRIORITY, THUMBNAIL_WIDTH};
 

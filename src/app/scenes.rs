@@ -694,6 +694,16 @@ impl App {
         Ok(self.engine().scheduler().has_room()?)
     }
 
+    /// Takes a synchronous trace's place in the queue now, before its rays are in, for a
+    /// request that makes something durable before its trace: a frame records its version
+    /// only once its trace has a place, so that a queue that filled while the positions
+    /// arrived refuses the frame whole (503, no version made) instead of after the version
+    /// is made. The place is held while the rays arrive (a frame's rays follow its
+    /// positions at once); [`App::begin_trace`] takes it.
+    pub fn reserve_trace(&self) -> Result<TracePlace, AppError> {
+        Ok(TracePlace(admit_sync_trace(self.engine())?))
+    }
+
     /// Notes that a trace body of `bytes` (after its first piece) took `seconds` to arrive,
     /// for `auto`'s estimate of the next one's arrival.
     pub fn note_upload(&self, bytes: u64, seconds: f64) {
@@ -705,12 +715,14 @@ impl App {
     /// each ray on its own and the batch is large, the trace takes its place in the queue
     /// now and starts on the rays that have arrived while the rest uploads (the structure
     /// is prepared first, during the upload); otherwise it takes its place, and starts,
-    /// when all have arrived.
+    /// when all have arrived. A `place` taken before ([`App::reserve_trace`]) is used
+    /// instead of a new one.
     pub async fn begin_trace(
         &self,
         id: &str,
         params: &TraceParams,
         rays: Option<usize>,
+        place: Option<TracePlace>,
     ) -> Result<TraceIntake, AppError> {
         let (geometry, _) = self.geometry(id, params.version, params.time).await?;
         let request = params.request();
@@ -723,9 +735,13 @@ impl App {
                 geometry,
                 request,
                 engine,
+                place: place.map(|p| p.0),
             });
         };
-        let ticket = admit_sync_trace(&engine)?;
+        let ticket = match place {
+            Some(p) => p.0,
+            None => admit_sync_trace(&engine)?,
+        };
         let (arrive, arrivals) = std::sync::mpsc::channel();
         let abandon = Abandon::new(&engine);
         let cancel = abandon.token.clone();
@@ -767,6 +783,10 @@ impl Drop for Abandon {
         self.sched.nudge();
     }
 }
+
+/// A synchronous trace's place in the queue taken ahead of its rays
+/// ([`App::reserve_trace`]); dropping it gives the place up.
+pub struct TracePlace(sched::Ticket);
 
 /// A synchronous trace's place in the queue, ahead of every job, taken when it can start
 /// (see [`App::trace_has_room`]).
@@ -835,6 +855,8 @@ pub enum TraceIntake {
         request: trace::TraceRequest,
         /// The engine.
         engine: Arc<crate::jobs::Engine>,
+        /// Its place in the queue, if taken before the rays ([`App::reserve_trace`]).
+        place: Option<sched::Ticket>,
     },
     /// The trace runs as the rays arrive.
     Streamed {
@@ -880,9 +902,14 @@ impl TraceIntake {
                 geometry,
                 request,
                 engine,
+                place,
             } => {
-                // Its place in the queue, now that the whole batch is here.
-                let ticket = admit_sync_trace(&engine)?;
+                // Its place in the queue, now that the whole batch is here (unless taken
+                // before).
+                let ticket = match place {
+                    Some(ticket) => ticket,
+                    None => admit_sync_trace(&engine)?,
+                };
                 let abandon = Abandon::new(&engine);
                 let cancel = abandon.token.clone();
                 let done = on_trace_thread(move || {

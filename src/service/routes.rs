@@ -19,7 +19,7 @@ use super::error::ApiError;
 use super::extract::{ApiJson, ApiPath, ApiQuery};
 use super::{AppState, Routes};
 use crate::app::{
-    App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, Tri1Body, UploadKind,
+    App, AppError, JobEvents, RenderSpec, Thumbnail, TraceParams, TracePlace, Tri1Body, UploadKind,
 };
 use crate::formats::binary::{ray_count, BinaryError, Ray1Sink, HEADER_BYTES};
 use crate::jobs::JobError;
@@ -420,6 +420,7 @@ async fn trace(
         declared,
         bytes::Bytes::new(),
         0,
+        None,
     )
     .await?;
     drop(reader);
@@ -429,7 +430,8 @@ async fn trace(
 /// Reads a RAY1 body (`declared` bytes long, if said), of which `first` has arrived, and
 /// traces it: the rays land in their final memory as the body arrives, and go to the
 /// trace in pieces if it can start before the body ends. Byte offsets in errors are
-/// shifted by `offset` (where the RAY1 document starts in the request's body).
+/// shifted by `offset` (where the RAY1 document starts in the request's body). `place`:
+/// the trace's place in the queue, if taken before ([`App::reserve_trace`]).
 #[allow(clippy::too_many_arguments)]
 async fn traced_body(
     app: &App,
@@ -440,13 +442,14 @@ async fn traced_body(
     declared: Option<u64>,
     first: bytes::Bytes,
     offset: u64,
+    place: Option<TracePlace>,
 ) -> Result<(crate::jobs::HitBody, crate::jobs::TraceReport), ApiError> {
     let ray_error = |e| binary_error_at(e, offset);
     let announced = declared
         .and_then(|len| len.checked_sub(16))
         .filter(|records| records % 32 == 0)
         .map(|records| (records / 32) as usize);
-    let mut intake = app.begin_trace(id, params, announced).await?;
+    let mut intake = app.begin_trace(id, params, announced, place).await?;
     let mut sink = Ray1Sink::new(state.config.max_rays as usize, declared);
     if let Some(n) = intake.segment_rays() {
         sink = sink.segmented(n);
@@ -559,9 +562,12 @@ async fn frame(
         ))
         .with("byte_offset", tri.len() as u64));
     }
-    // The positions become the next version first, as a `PUT` would make it, while the
-    // rays go on arriving into the connection's buffers; then the rays are read and traced
-    // against it as a trace's are (piece by piece as they come, where the core allows).
+    // The trace's place in the queue first, so that a queue that filled while the
+    // positions arrived refuses the frame before it makes a version (503, nothing made).
+    let place = app.reserve_trace()?;
+    // The positions become the next version, as a `PUT` would make it, while the rays go
+    // on arriving into the connection's buffers; then the rays are read and traced against
+    // it as a trace's are (piece by piece as they come, where the core allows).
     let version = app.update_geometry(&id, tri.freeze()).await?;
     let params = TraceParams {
         version: Some(version as u32),
@@ -576,6 +582,7 @@ async fn frame(
         declared.and_then(|n| n.checked_sub(tri_len as u64)),
         rest,
         tri_len as u64,
+        Some(place),
     )
     .await;
     // A frame refused for its rays has made its version all the same: the problem says
