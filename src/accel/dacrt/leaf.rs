@@ -16,7 +16,8 @@
 //! [`TriTest::finish_t`], applied once per ray when the batch writes its records.
 
 use crate::accel::triangle::{
-    edges8, entry8, in_range8, mt_det_ok8, mt_in_range8, MollerTrumbore, PreparedRay, TriTest,
+    edges8, entry8, in_range8, mt_det_ok8, mt_in_range8, mt_rounded_zero8, MollerTrumbore,
+    PreparedRay, TriTest,
 };
 use crate::accel::Precision;
 use crate::geometry::{Hit, Ray, Triangle};
@@ -234,7 +235,7 @@ impl LeafTest for Moller {
         let pz = dx * e2y - dy * e2x;
         let (e1x, e1y, e1z) = (c(1, 0), c(1, 1), c(1, 2));
         let det = e1x * px + e1y * py + e1z * pz;
-        let det_ok = mt_det_ok8(s, det);
+        let mut det_ok = mt_det_ok8(s, det);
         let inv = s.splat_f8(1.0) / det;
         let sx = r.org[0] - c(0, 0);
         let sy = r.org[1] - c(0, 1);
@@ -250,6 +251,14 @@ impl LeafTest for Moller {
         let inside = u.min(v).ge(zero) & (u + v).le(s.splat_f8(1.0));
         if det_ok.andnot(inside).all() {
             return Hit8::miss(inside, zero);
+        }
+        if !det_ok.all() {
+            // The layer's rule for zero determinants at ordinary scales.
+            let (e1, e2) = ([e1x, e1y, e1z], [e2x, e2y, e2z]);
+            det_ok = det_ok | mt_rounded_zero8(s, det, r.dir, e1, e2);
+            if det_ok.andnot(inside).all() {
+                return Hit8::miss(inside, zero);
+            }
         }
         let tn = e2x * qx + e2y * qy + e2z * qz;
         let t = tn * inv;

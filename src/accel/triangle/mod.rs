@@ -34,7 +34,7 @@ pub mod oracle;
 pub(crate) mod tests;
 mod watertight;
 
-pub use moller::{mt_det_ok8, mt_in_range8, MollerTrumbore};
+pub use moller::{mt_det_ok8, mt_in_range8, mt_rounded_zero8, MollerTrumbore};
 pub use oracle::{oracle_closest_f64, oracle_f64, oracle_line_f64, OracleHit};
 pub use watertight::{edges8, entry8, in_range8, lift_t, refined_t, Watertight};
 

@@ -14,7 +14,7 @@
 use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::Triangle;
-use crate::simd::scalar::min_x86;
+use crate::simd::scalar::{max_x86, min_x86};
 use crate::simd::{FloatV, MaskV, Select, Simd};
 
 /// The Möller–Trumbore test (`precision=fast`).
@@ -27,9 +27,9 @@ pub struct MollerTrumbore;
 /// rounds to ±0, which `u >= 0` accepts whatever the exact sign (a point beside the
 /// triangle taken as on its edge), and a t numerator that did made a plane behind the
 /// origin a hit at `t = -0`, which `brute` reported and the trees, whose boxes lay behind
-/// the ray, did not. A numerator or determinant of exactly 0 (the ray through an edge's
-/// line, from a vertex, or along the triangle's plane) is decided again too, in f64, which
-/// may put such an edge hit on the other side (this test keeps no edge closed anyway).
+/// the ray, did not. A numerator of exactly 0 (the ray through an edge's line, or from a
+/// vertex) is flagged too, and [`redecided_lane`] keeps its f32 answer where nothing
+/// underflowed; a determinant of 0 at ordinary scales is not flagged ([`rounded_zero`]).
 #[inline(always)]
 fn in_range(un: f32, vn: f32, tn: f32, t: f32) -> bool {
     un.is_normal() && vn.is_normal() && tn.is_normal() && t.is_normal()
@@ -213,11 +213,55 @@ pub fn mt_det_ok8<S: Simd>(s: S, det: S::F8) -> S::M8 {
     a.ge(s.splat_f8(f32::MIN_POSITIVE)) & a.le(s.splat_f8(f32::MAX))
 }
 
+/// Below this, the scale of a determinant ([`rounded_zero`]) leaves room for underflow:
+/// 2^-100.
+const ROUNDED_ZERO_SCALE: f32 = 7.888_609e-31;
+
+/// Whether a zero or subnormal determinant is f32's rounding of a ray parallel to the
+/// triangle's plane rather than an underflow: its scale, `max|e2|·max|d|` and that times
+/// `max|e1|` (each `max` over components, the x86 `max`), is at least 2^-100. Then the
+/// determinant's rounding error, a few 2^-24 of its scale, exceeds anything an underflow
+/// could have lost (2^-149 per product, times at most `max|e1|`), so it is kept: a miss,
+/// as it always was. Why: a ray along an axis against walls that contain that axis (a
+/// vertical ray beside axis-aligned boxes) has determinants of exactly 0 in every such
+/// triangle; deciding each of those again ran `mbvh8` 2.5× and `dacrt` 3.3× as long on
+/// 120,000 box triangles (BENCHMARKS §42). A scale below 2^-100 (triangles ~1e-20 across
+/// and smaller, or such directions) is decided again.
+#[inline(always)]
+fn rounded_zero(det: f32, d: [f32; 3], e1: [f32; 3], e2: [f32; 3]) -> bool {
+    let m = |v: [f32; 3]| max_x86(max_x86(v[0].abs(), v[1].abs()), v[2].abs());
+    let a = m(e2) * m(d);
+    let b = a * m(e1);
+    det.abs() < f32::MIN_POSITIVE && a >= ROUNDED_ZERO_SCALE && b >= ROUNDED_ZERO_SCALE
+}
+
+/// [`rounded_zero`] on 8 lanes, the same operations.
+#[inline(always)]
+pub fn mt_rounded_zero8<S: Simd>(
+    s: S,
+    det: S::F8,
+    d: [S::F8; 3],
+    e1: [S::F8; 3],
+    e2: [S::F8; 3],
+) -> S::M8 {
+    let m = |v: [S::F8; 3]| v[0].abs().max(v[1].abs()).max(v[2].abs());
+    let a = m(e2) * m(d);
+    let b = a * m(e1);
+    let scale = s.splat_f8(ROUNDED_ZERO_SCALE);
+    det.abs().lt(s.splat_f8(f32::MIN_POSITIVE)) & a.ge(scale) & b.ge(scale)
+}
+
 /// The t, barycentrics and validity of 8 lanes, with the lanes that left f32's range
-/// decided again by [`redecided_lane`]: those whose determinant is not normal (`det_ok`
-/// clear) and those `inside` whose numerators `un, vn, tn` or t are not (`in_range`; the
-/// scalar test's rule, lane for lane). Shared by the layer's 8-triangle test and DACRT's
-/// 8-ray leaf test; `lanes` gives `(p, org, dir)` per lane, asked for only then.
+/// decided again by [`redecided_lane`]: those whose determinant is not normal and not a
+/// rounded zero (`det_ok` clear), and
+/// those `inside` whose numerators `un, vn, tn` or t are not normal (`in_range`; the scalar
+/// test's rule, lane for lane). Shared by the layer's 8-triangle test and DACRT's 8-ray
+/// leaf test; `lanes` gives `(p, org, dir)` per lane, asked for only then. The kernels
+/// sort out rounded zeros ([`mt_rounded_zero8`]) before their early return, which costs a
+/// compare and a branch in every test with a lane inside (+1% of `dacrt`'s instructions
+/// on the dragon); sorted out here instead, after t, a vertical ray beside axis-aligned
+/// walls ran 1.4× (`mbvh8`) and 2× (`dacrt`) as long as before the check (BENCHMARKS §42).
+/// `det_ok` includes them.
 #[inline(always)]
 pub fn mt_in_range8<S: Simd>(
     s: S,
@@ -248,8 +292,10 @@ impl TriTest for MollerTrumbore {
     /// through no axis: with all-NaN padding the determinant was NaN, which sent every
     /// 8-triangle test with a padding lane to the f64 decision (mbvh8 ran 64% more
     /// instructions). These keep it normal for every direction the cores test (tiny ones
-    /// are scaled up, `accel::tiny_dir`) unless it lies almost exactly in their plane (a
-    /// cosine below ~2^-56), and below f32's largest for the largest.
+    /// are scaled up, `accel::tiny_dir`; the smallest |det|/|d| over axis and small
+    /// integer directions is 1.1e-4) unless it lies almost exactly in their plane (a
+    /// cosine below ~2^-24, where f32's determinant is rounding noise), and below f32's
+    /// largest for the largest. Never a hit: the NaN `v0` makes u and v NaN.
     const PAD: [[f32; 3]; 3] = [
         [f32::NAN; 3],
         [0.123_456_7, -0.098_765_4, 0.045_678_9],
@@ -288,7 +334,8 @@ impl TriTest for MollerTrumbore {
         // The x86 `min` (a NaN u slips past it but not past the sum): the form of the
         // 8-wide test, so the two agree bit for bit.
         let inside = min_x86(u, v) >= 0.0 && u + v <= 1.0;
-        if !det.is_normal() || (inside && !in_range(un, vn, tn, t)) {
+        let det_ok = det.is_normal() || rounded_zero(det, d, e1, e2);
+        if !det_ok || (inside && !in_range(un, vn, tn, t)) {
             return redecided_lane(p, r.org, r.dir).filter(|h| h.t >= r.tmin && h.t <= tmax);
         }
         (inside && t >= r.tmin && t <= tmax).then_some(TriHit { t, u, v })
@@ -320,7 +367,7 @@ impl TriTest for MollerTrumbore {
         let pz = dx * e2y - dy * e2x;
         let (e1x, e1y, e1z) = (ld(1, 0), ld(1, 1), ld(1, 2));
         let det = e1x * px + e1y * py + e1z * pz;
-        let det_ok = mt_det_ok8(s, det);
+        let mut det_ok = mt_det_ok8(s, det);
         let inv = s.splat_f8(1.0) / det;
         let sx = r.org[0] - ld(0, 0);
         let sy = r.org[1] - ld(0, 1);
@@ -338,10 +385,50 @@ impl TriTest for MollerTrumbore {
         if det_ok.andnot(inside).all() {
             return (inside, zero, zero, zero);
         }
+        if !det_ok.all() {
+            // Zero determinants of rays parallel to a triangle at ordinary scales.
+            let (e1, e2) = ([e1x, e1y, e1z], [e2x, e2y, e2z]);
+            det_ok = det_ok | mt_rounded_zero8(s, det, r.dir, e1, e2);
+            if det_ok.andnot(inside).all() {
+                return (inside, zero, zero, zero);
+            }
+        }
         let tn = e2x * qx + e2y * qy + e2z * qz;
         let t = tn * inv;
         let lanes = || ([0, 1, 2].map(|i| [0, 1, 2].map(|k| ld(i, k))), r.org, r.dir);
         let (t, u, v, valid) = mt_in_range8(s, lanes, det_ok, inside, [un, vn, tn], [t, u, v]);
         (valid & t.ge(r.tmin) & t.le(tmax), t, u, v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A vertical ray beside a wall that contains the vertical: both of the wall's
+    /// triangles have a determinant of exactly 0, from products with a zero factor, and
+    /// are kept as misses without being decided again; the same configuration 1e-25 times
+    /// as large has a scale below 2^-100 and is decided again.
+    #[test]
+    fn zero_determinants_at_ordinary_scales_are_kept() {
+        let d = [0.0, -1.0, 0.0];
+        for k in [1.0f32, 1e-25] {
+            let (sx, sy) = (1.5 * k, 0.75 * k);
+            for (e1, e2) in [
+                ([sx, 0.0, 0.0], [sx, sy, 0.0]),
+                ([sx, sy, 0.0], [0.0, sy, 0.0]),
+            ] {
+                let p = [
+                    d[1] * e2[2] - d[2] * e2[1],
+                    d[2] * e2[0] - d[0] * e2[2],
+                    d[0] * e2[1] - d[1] * e2[0],
+                ];
+                let det = e1[0] * p[0] + e1[1] * p[1] + e1[2] * p[2];
+                assert_eq!(det, 0.0);
+                assert_eq!(rounded_zero(det, d, e1, e2), k == 1.0, "scale {k:e}");
+            }
+        }
+        // A normal determinant is not a rounded zero, whatever its scale.
+        assert!(!rounded_zero(1.0, d, [1.0; 3], [1.0; 3]));
     }
 }
