@@ -1908,7 +1908,15 @@ fn a_frame_that_finds_the_queue_full_makes_no_version() {
     )
     .unwrap();
     c.write_all(&body[..tri1.len() / 2]).unwrap();
-    std::thread::sleep(Duration::from_millis(200));
+    // Until the server reads the body (its head checked, the queue then with room).
+    let start = Instant::now();
+    while Metrics::scrape(&s).get("rayd_request_body_bytes_in_flight") <= 0.0 {
+        assert!(
+            start.elapsed().as_secs() < 30,
+            "the frame's body was never read"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
     // A render takes the queue's one place behind the long trace.
     let r = s.req(
         "POST",

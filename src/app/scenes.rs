@@ -689,7 +689,8 @@ impl App {
     /// Refuses a synchronous trace before its body is read when the queue is full (or the
     /// service is shutting down), so that a client does not upload a batch to hear 503.
     /// The place itself is taken when the trace can start ([`App::begin_trace`]): a body
-    /// still on its way holds none, so slow uploads cannot fill the queue.
+    /// still on its way holds none, so slow uploads cannot fill the queue (a frame's
+    /// rays excepted: [`App::reserve_trace`]).
     pub fn trace_has_room(&self) -> Result<(), AppError> {
         Ok(self.engine().scheduler().has_room()?)
     }
@@ -701,7 +702,7 @@ impl App {
     /// is made. The place is held while the rays arrive (a frame's rays follow its
     /// positions at once); [`App::begin_trace`] takes it.
     pub fn reserve_trace(&self) -> Result<TracePlace, AppError> {
-        Ok(TracePlace(admit_sync_trace(self.engine())?))
+        Ok(TracePlace(self.engine().scheduler().reserve()?))
     }
 
     /// Notes that a trace body of `bytes` (after its first piece) took `seconds` to arrive,
@@ -735,11 +736,11 @@ impl App {
                 geometry,
                 request,
                 engine,
-                place: place.map(|p| p.0),
+                place,
             });
         };
         let ticket = match place {
-            Some(p) => p.0,
+            Some(p) => p.taken(),
             None => admit_sync_trace(&engine)?,
         };
         let (arrive, arrivals) = std::sync::mpsc::channel();
@@ -787,6 +788,14 @@ impl Drop for Abandon {
 /// A synchronous trace's place in the queue taken ahead of its rays
 /// ([`App::reserve_trace`]); dropping it gives the place up.
 pub struct TracePlace(sched::Ticket);
+
+impl TracePlace {
+    /// The ticket, for a trace about to ask for the pool ([`sched::Ticket::arrive`]).
+    fn taken(self) -> sched::Ticket {
+        self.0.arrive();
+        self.0
+    }
+}
 
 /// A synchronous trace's place in the queue, ahead of every job, taken when it can start
 /// (see [`App::trace_has_room`]).
@@ -856,7 +865,7 @@ pub enum TraceIntake {
         /// The engine.
         engine: Arc<crate::jobs::Engine>,
         /// Its place in the queue, if taken before the rays ([`App::reserve_trace`]).
-        place: Option<sched::Ticket>,
+        place: Option<TracePlace>,
     },
     /// The trace runs as the rays arrive.
     Streamed {
@@ -907,7 +916,7 @@ impl TraceIntake {
                 // Its place in the queue, now that the whole batch is here (unless taken
                 // before).
                 let ticket = match place {
-                    Some(ticket) => ticket,
+                    Some(p) => p.taken(),
                     None => admit_sync_trace(&engine)?,
                 };
                 let abandon = Abandon::new(&engine);

@@ -175,6 +175,27 @@ impl Scheduler {
         Ok(ticket)
     }
 
+    /// Takes a synchronous trace's place in the queue now for work that starts later (a
+    /// frame's trace, whose place is taken before its positions are recorded and held
+    /// while its rays arrive): admitted as [`Scheduler::admit`] admits, but not absent and
+    /// not interactive until [`Ticket::arrive`]. Absent at once, it held the pool back
+    /// from every job it outranks for [`ABSENT_GRACE`] while nothing was about to ask for
+    /// it (the frame still writing its version, its rays still arriving: session 36's
+    /// review).
+    pub fn reserve(self: &Arc<Self>) -> Result<Ticket, JobError> {
+        let mut s = self.lock();
+        self.room(&s, true)?;
+        s.queued += 1;
+        s.next_seq += 1;
+        Ok(Ticket {
+            sched: Arc::clone(self),
+            priority: SYNC_PRIORITY,
+            seq: AtomicU64::new(s.next_seq),
+            started: AtomicBool::new(false),
+            background: false,
+        })
+    }
+
     /// Whether [`Scheduler::admit`] would admit a job now, without taking a place: a
     /// request whose place is taken only after its body has arrived is refused at once
     /// when the queue is already full or the service is shutting down.
@@ -371,6 +392,18 @@ impl Ticket {
     }
 
     /// Records that the ticket holds no lease and is not waiting for one, from now.
+    /// A reserved ticket ([`Scheduler::reserve`]) whose work is about to ask for the pool:
+    /// it takes a new place in its priority's order (behind the synchronous traces that
+    /// arrived while it waited, as if admitted now), marks the service interactive and
+    /// is absent from now, as a ticket just admitted is.
+    pub fn arrive(&self) {
+        let mut s = self.sched.lock();
+        s.next_seq += 1;
+        self.seq.store(s.next_seq, Ordering::Relaxed);
+        s.last_interactive = Some(Instant::now());
+        self.went_absent(&mut s);
+    }
+
     fn went_absent(&self, s: &mut State) {
         let waiter = Waiter {
             started: self.started.load(Ordering::Acquire),
@@ -441,6 +474,27 @@ mod tests {
         assert!(s.admit(50, false).is_ok());
         s.shut_down();
         assert!(matches!(s.has_room(), Err(JobError::ShuttingDown)));
+    }
+
+    /// A reserved synchronous trace (a frame's) holds its place in the queue but keeps no
+    /// job from the pool until it arrives (session 36's review: admitted at once, it held
+    /// every render back for `ABSENT_GRACE` while its frame was still writing).
+    #[test]
+    fn a_reserved_trace_holds_a_place_but_not_the_pool() {
+        let s = Scheduler::new(2, 4);
+        let place = s.reserve().unwrap();
+        let job = s.admit(50, false).unwrap();
+        assert_eq!(s.queued(), 2);
+        assert!(matches!(s.admit(50, false), Err(JobError::QueueFull(2))));
+        assert!(s.held_back(&s.lock(), job.rank()).is_none());
+        place.arrive();
+        assert!(s.held_back(&s.lock(), job.rank()).is_some());
+        assert!(s.lock().last_interactive.is_some());
+        drop(place);
+        assert_eq!(s.queued(), 1);
+        assert!(s.held_back(&s.lock(), job.rank()).is_none());
+        s.shut_down();
+        assert!(s.reserve().is_ok(), "a frame in flight may still trace");
     }
 
     #[test]
