@@ -1096,6 +1096,19 @@ fn stalled_trace_bodies_hold_no_place_in_the_queue() {
     drop(stalled);
 }
 
+/// 40,000 small triangles in a unit square; `brute` tests every ray against all of them,
+/// so 40,000 rays hold the pool for about a second on two cores.
+fn slow_grid() -> Vec<Triangle> {
+    (0..40_000)
+        .map(|i| {
+            let (x, y) = ((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
+            Triangle {
+                v: [[x, y, 0.0], [x + 0.005, y, 0.0], [x, y + 0.005, 0.0]],
+            }
+        })
+        .collect()
+}
+
 /// A synchronous trace whose client hangs up before the answer gives up its place in the
 /// queue (session 31's review: four clients that sent 1K rays and closed the connection
 /// while a long trace held the pool filled `--max-queued 4`, renders got 503, and the
@@ -1105,16 +1118,7 @@ fn abandoned_traces_give_up_their_places() {
     use std::io::Write;
     let dir = tempfile::tempdir().unwrap();
     let s = Server::start(&dir.path().join("data"), &["--max-queued", "2"]);
-    // 40,000 small triangles in a unit square; `brute` tests every ray against all of them,
-    // so 40,000 rays hold the pool for about a second on two cores.
-    let tris: Vec<Triangle> = (0..40_000)
-        .map(|i| {
-            let (x, y) = ((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
-            Triangle {
-                v: [[x, y, 0.0], [x + 0.005, y, 0.0], [x, y + 0.005, 0.0]],
-            }
-        })
-        .collect();
+    let tris = slow_grid();
     let id = s.upload_tri(&tris)["id"].as_str().unwrap().to_string();
     let rays = |n| write_rays(&rays_at([0.0, 0.0, -1.0], [1.0, 1.0, 1.0], n));
     let long = rays(40_000);
@@ -1869,15 +1873,7 @@ fn a_frame_that_finds_the_queue_full_makes_no_version() {
     use std::io::{Read, Write};
     let dir = tempfile::tempdir().unwrap();
     let s = Server::start(&dir.path().join("data"), &["--max-queued", "1"]);
-    // 40,000 small triangles: `brute` holds the pool for about a second with 40,000 rays.
-    let tris: Vec<Triangle> = (0..40_000)
-        .map(|i| {
-            let (x, y) = ((i % 200) as f32 / 200.0, (i / 200) as f32 / 200.0);
-            Triangle {
-                v: [[x, y, 0.0], [x + 0.005, y, 0.0], [x, y + 0.005, 0.0]],
-            }
-        })
-        .collect();
+    let tris = slow_grid();
     let id = s.upload_tri(&tris)["id"].as_str().unwrap().to_string();
     let version = || {
         s.req("GET", &format!("/v1/scenes/{id}"), &[], &[]).json()["version"]

@@ -159,20 +159,27 @@ impl Scheduler {
     pub fn admit(self: &Arc<Self>, priority: u16, interactive: bool) -> Result<Ticket, JobError> {
         let mut s = self.lock();
         self.room(&s, priority == SYNC_PRIORITY)?;
-        s.queued += 1;
-        s.next_seq += 1;
         if interactive {
             s.last_interactive = Some(Instant::now());
         }
-        let ticket = Ticket {
+        let ticket = self.place(&mut s, priority, false);
+        ticket.went_absent(&mut s);
+        Ok(ticket)
+    }
+
+    /// A new ticket's place in the queue, last in its priority's order (neither absent nor
+    /// waiting yet).
+    fn place(self: &Arc<Self>, s: &mut State, priority: u16, background: bool) -> Ticket {
+        s.queued += 1;
+        s.queued_background += usize::from(background);
+        s.next_seq += 1;
+        Ticket {
             sched: Arc::clone(self),
             priority,
             seq: AtomicU64::new(s.next_seq),
             started: AtomicBool::new(false),
-            background: false,
-        };
-        ticket.went_absent(&mut s);
-        Ok(ticket)
+            background,
+        }
     }
 
     /// Takes a synchronous trace's place in the queue now for work that starts later (a
@@ -185,15 +192,7 @@ impl Scheduler {
     pub fn reserve(self: &Arc<Self>) -> Result<Ticket, JobError> {
         let mut s = self.lock();
         self.room(&s, true)?;
-        s.queued += 1;
-        s.next_seq += 1;
-        Ok(Ticket {
-            sched: Arc::clone(self),
-            priority: SYNC_PRIORITY,
-            seq: AtomicU64::new(s.next_seq),
-            started: AtomicBool::new(false),
-            background: false,
-        })
+        Ok(self.place(&mut s, SYNC_PRIORITY, false))
     }
 
     /// Whether [`Scheduler::admit`] would admit a job now, without taking a place: a
@@ -234,16 +233,7 @@ impl Scheduler {
 
     fn ticket(self: &Arc<Self>, priority: u16, background: bool) -> Ticket {
         let mut s = self.lock();
-        s.queued += 1;
-        s.queued_background += usize::from(background);
-        s.next_seq += 1;
-        let ticket = Ticket {
-            sched: Arc::clone(self),
-            priority,
-            seq: AtomicU64::new(s.next_seq),
-            started: AtomicBool::new(false),
-            background,
-        };
+        let ticket = self.place(&mut s, priority, background);
         ticket.went_absent(&mut s);
         ticket
     }

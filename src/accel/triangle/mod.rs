@@ -329,6 +329,36 @@ pub struct TriHit {
     pub v: f32,
 }
 
+/// The lanes of `bad` decided again, one by one, by `decide` (a lane's index to its hit,
+/// `None` for a miss), merged into the others' `t, u, v` and validity (a miss's t becomes
+/// `+inf`). The shared half of both tests' cold paths: [`Watertight`]'s rescaled lanes and
+/// [`MollerTrumbore`]'s redecided ones, each called from a `#[cold]` function of its test.
+#[inline(always)]
+pub(crate) fn merge_lanes8<S: Simd>(
+    s: S,
+    bad: u32,
+    [t, u, v]: [S::F8; 3],
+    valid: S::M8,
+    mut decide: impl FnMut(usize) -> Option<TriHit>,
+) -> (S::F8, S::F8, S::F8, S::M8) {
+    use crate::simd::{FloatV, Select};
+    let (mut t, mut u, mut v) = (t.to_array(), u.to_array(), v.to_array());
+    let one = s.splat_f8(1.0);
+    let mut ok = valid.select(one, s.splat_f8(0.0)).to_array();
+    for lane in (0..8).filter(|l| bad >> l & 1 == 1) {
+        match decide(lane) {
+            Some(h) => (t[lane], u[lane], v[lane], ok[lane]) = (h.t, h.u, h.v, 1.0),
+            None => (t[lane], ok[lane]) = (f32::INFINITY, 0.0),
+        }
+    }
+    (
+        s.load_f8(&t),
+        s.load_f8(&u),
+        s.load_f8(&v),
+        s.load_f8(&ok).eq(one),
+    )
+}
+
 /// A ray/triangle test in its scalar and 8-wide forms, which agree bit for bit.
 pub trait TriTest: Copy + Default + Debug + Send + Sync + 'static {
     /// The contract's precision this test implements.

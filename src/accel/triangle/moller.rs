@@ -15,7 +15,7 @@ use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::Triangle;
 use crate::simd::scalar::{max_x86, min_x86};
-use crate::simd::{FloatV, MaskV, Select, Simd};
+use crate::simd::{FloatV, MaskV, Simd};
 
 /// The Möller–Trumbore test (`precision=fast`).
 #[derive(Clone, Copy, Debug, Default)]
@@ -182,27 +182,15 @@ fn redecided8<S: Simd>(
     p: &[[S::F8; 3]; 3],
     org: &[S::F8; 3],
     dir: &[S::F8; 3],
-    [t, bu, bv]: [S::F8; 3],
+    tuv: [S::F8; 3],
     valid: S::M8,
 ) -> (S::F8, S::F8, S::F8, S::M8) {
     let p = p.map(|v| v.map(|x| x.to_array()));
     let (org, dir) = (org.map(|x| x.to_array()), dir.map(|x| x.to_array()));
-    let (mut t, mut bu, mut bv) = (t.to_array(), bu.to_array(), bv.to_array());
-    let one = s.splat_f8(1.0);
-    let mut ok = valid.select(one, s.splat_f8(0.0)).to_array();
-    for lane in (0..8).filter(|l| bad >> l & 1 == 1) {
-        let lane_p = p.map(|v| v.map(|x| x[lane]));
-        match redecided_lane(&lane_p, org.map(|x| x[lane]), dir.map(|x| x[lane])) {
-            Some(h) => (t[lane], bu[lane], bv[lane], ok[lane]) = (h.t, h.u, h.v, 1.0),
-            None => (t[lane], ok[lane]) = (f32::INFINITY, 0.0),
-        }
-    }
-    (
-        s.load_f8(&t),
-        s.load_f8(&bu),
-        s.load_f8(&bv),
-        s.load_f8(&ok).eq(one),
-    )
+    super::merge_lanes8(s, bad, tuv, valid, |lane| {
+        let at = |a: [[f32; 8]; 3]| a.map(|x| x[lane]);
+        redecided_lane(&p.map(at), at(org), at(dir))
+    })
 }
 
 /// The lanes whose determinant is a normal f32 (finite, at least 2^-126 in magnitude): a

@@ -20,7 +20,7 @@ use super::{PreparedRay, PreparedRay8, Tri8, TriHit, TriTest};
 use crate::accel::Precision;
 use crate::geometry::{Ray, Triangle};
 use crate::simd::scalar::{max_x86, min_x86};
-use crate::simd::{FloatV, MaskV, Select, Simd};
+use crate::simd::{FloatV, MaskV, Simd};
 
 /// The watertight test (`precision=watertight`, the default).
 #[derive(Clone, Copy, Debug, Default)]
@@ -323,26 +323,9 @@ fn rescaled8<S: Simd>(
 ) -> (S::F8, S::F8, S::F8, S::M8) {
     let rel = rel.map(|p| p.map(|x| x.to_array()));
     let shear = shear.map(|x| x.to_array());
-    let (mut t, mut bu, mut bv) = (t.to_array(), bu.to_array(), bv.to_array());
-    let one = s.splat_f8(1.0);
-    let mut ok = valid.select(one, s.splat_f8(0.0)).to_array();
-    for lane in (0..8).filter(|l| bad >> l & 1 == 1) {
-        let r = rel.map(|p| p.map(|x| x[lane]));
-        match rescaled_lane(r, shear.map(|x| x[lane])) {
-            Some(h) => {
-                (t[lane], bu[lane], bv[lane], ok[lane]) = (h.t, h.u, h.v, 1.0);
-            }
-            None => {
-                (t[lane], ok[lane]) = (f32::INFINITY, 0.0);
-            }
-        }
-    }
-    (
-        s.load_f8(&t),
-        s.load_f8(&bu),
-        s.load_f8(&bv),
-        s.load_f8(&ok).eq(one),
-    )
+    super::merge_lanes8(s, bad, [t, bu, bv], valid, |lane| {
+        rescaled_lane(rel.map(|p| p.map(|x| x[lane])), shear.map(|x| x[lane]))
+    })
 }
 
 /// The paper's t, barycentrics and validity of 8 lanes, with the lanes of `inside` that
